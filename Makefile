@@ -1,0 +1,31 @@
+# pf_slam: the two commands a user needs are `make run` (main job) and `make test`.
+# Both set up whatever is missing first (scripts/setup.sh is idempotent and fast when done).
+SHELL := /bin/bash
+VENV ?= $(CURDIR)/.venv
+BIN := $(VENV)/bin
+SAMPLE_BAG ?= bags/sample_indoor
+OUT ?= runs/sample
+PYTEST_ARGS ?=
+
+.PHONY: setup run test bench lock clean
+
+setup:
+	@bash scripts/setup.sh
+
+run: setup
+	$(BIN)/pf-slam run $(SAMPLE_BAG) --out $(OUT) --rate max
+
+test: setup
+	$(BIN)/python -m pytest $(PYTEST_ARGS)
+
+bench: setup
+	$(BIN)/pf-slam bench --out docs/bench
+
+lock: setup   ## re-pin requirements/constraints.txt from the current venv
+	@{ echo "# Lock file for the pip-only install: exact versions measured to work together (ROS 2 Jazzy wheels,"; \
+	   echo "# rclpy 7.1.6). Regenerate with: make lock"; \
+	   $(BIN)/pip freeze --all --exclude-editable --exclude pf-slam-interfaces --exclude tf2-msgs \
+	     --exclude pf-slam-nodes --exclude pip | sort; } > requirements/constraints.txt
+
+clean:
+	rm -rf build runs $(VENV)

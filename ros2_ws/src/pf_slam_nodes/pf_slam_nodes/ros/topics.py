@@ -1,0 +1,18 @@
+"""Default topic names (relative, so a namespace or remapping applies)."""
+
+SCAN = "scan"
+ODOM = "odom"
+ENCODERS = "encoders"
+FOG = "fog"
+CLOCK = "/clock"
+TF = "/tf"
+TF_STATIC = "/tf_static"
+
+PARTICLES_PREDICTED = "particles/predicted"
+PARTICLES_UPDATED = "particles/updated"
+POSE = "pose"
+MAP = "map"
+MAP_METADATA = "map_metadata"
+PATH = "path"
+GRID = "pf_slam/grid"  # mapper -> correlator: the occupancy grid after every integration
+REPLAY_STATUS = "pf_slam/replay_status"  # bag_replay -> all: end of bag

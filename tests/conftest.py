@@ -1,0 +1,78 @@
+"""Shared fixtures. ROS fixtures import rclpy lazily so tests/unit never needs it."""
+from __future__ import annotations
+
+import fcntl
+import os
+import time
+from pathlib import Path
+from typing import Callable, Iterator
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = Path(os.environ.get("PF_SLAM_DATA", ROOT.parent / "shared" / "data"))
+
+
+@pytest.fixture(scope="session")
+def data_dir() -> Path:
+    if not DATA.is_dir():
+        pytest.fail(f"shared datasets not found at {DATA} (set PF_SLAM_DATA)")
+    return DATA
+
+
+@pytest.fixture
+def ros_domain() -> Iterator[int]:
+    """A ROS_DOMAIN_ID no other test (in this or a parallel pytest run) holds right now.
+
+    Domains 1..100 are claimed with an exclusive file lock held for the test's duration.
+    """
+    lock_dir = Path(os.environ.get("TMPDIR", "/tmp")) / "pf_slam_domains"
+    lock_dir.mkdir(exist_ok=True)
+    start = os.getpid() % 100
+    for k in range(100):
+        domain = 1 + (start + k) % 100
+        fh = open(lock_dir / f"{domain}.lock", "w")
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            fh.close()
+            continue
+        old = os.environ.get("ROS_DOMAIN_ID")
+        os.environ["ROS_DOMAIN_ID"] = str(domain)
+        os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+        try:
+            yield domain
+        finally:
+            if old is None:
+                os.environ.pop("ROS_DOMAIN_ID", None)
+            else:
+                os.environ["ROS_DOMAIN_ID"] = old
+            fcntl.flock(fh, fcntl.LOCK_UN)
+            fh.close()
+        return
+    pytest.fail("no free ROS domain id in 1..100")
+
+
+@pytest.fixture
+def ros_context(ros_domain: int):
+    """An isolated rclpy Context on the test's own domain, shut down afterwards."""
+    import rclpy
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=ros_domain)
+    try:
+        yield ctx
+    finally:
+        if ctx.ok():
+            rclpy.shutdown(context=ctx)
+
+
+def spin_until(executor, predicate: Callable[[], bool], timeout_s: float,
+               step_s: float = 0.01) -> bool:
+    """Spin `executor` until `predicate()` is true or `timeout_s` passes; returns the predicate."""
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            return predicate()
+        executor.spin_once(timeout_sec=step_s)
+    return True
