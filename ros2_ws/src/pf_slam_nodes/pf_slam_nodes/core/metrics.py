@@ -1,0 +1,335 @@
+"""Trajectory accuracy metrics for planar SLAM (pure numpy).
+
+* ATE (absolute trajectory error): RMSE etc. of position differences after the least-squares
+  SE(2) alignment of the estimate onto the ground truth (Umeyama 1991 without scale).
+* RPE (relative pose error) over a fixed index step (Sturm et al. 2012, in SE(2)).
+* Relations error (Kümmerle et al. 2009, "On measuring the accuracy of SLAM algorithms"):
+  for each ground-truth relation ``(t1, t2, delta*)``, the estimated relative pose
+  ``delta = pose(t1)^-1 * pose(t2)`` is compared with the true one through the error transform
+  ``e = delta*^-1 * delta``; translational error ``||e.xy||`` (m), rotational ``|wrap(e.theta)|``
+  (deg). Reported as mean and (population) standard deviation over the matched relations.
+  No global alignment is needed: relations are frame-independent.
+
+Poses are ``(K, 3)`` ``[x, y, theta]`` arrays (m, m, rad); stamps are seconds (float64).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+
+__all__ = [
+    'RELATION_MAX_DT',
+    'align_se2',
+    'apply_se2',
+    'associate',
+    'ate',
+    'evaluate',
+    'format_evaluation',
+    'match_stamps',
+    'relations_error',
+    'relative_se2',
+    'rpe',
+    'wrap_angle',
+]
+
+#: Default stamp tolerance (s) for matching relation stamps to trajectory stamps.
+#: The relation stamps of intel_910.relations and intel_2726.relations are exact copies of
+#: scan stamps (the rounded ``gfs`` stamps of intel_2726.clf are never relation stamps), so
+#: they match with any tolerance >= 0 (37/37 and 90/90). The tolerance must stay tight: the
+#: full intel.relations refers to readings of the bursty original log that are only 0.7-5 ms
+#: away from other readings, and a 1 ms tolerance already pairs 7 of its relations with the
+#: wrong intel_910 scan (97 instead of 90; 91 instead of 37 for intel_2726). 10 us keeps
+#: exactly the subset relations (90 / 37) from intel.relations and is 100x the float64 /
+#: 9-decimal TUM round-off of such stamps (~1e-7 s).
+RELATION_MAX_DT = 1e-5
+
+
+def wrap_angle(a: np.ndarray | float) -> np.ndarray:
+    """Angles wrapped to ``[-pi, pi)``."""
+    return (np.asarray(a, dtype=np.float64) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def _poses(p: np.ndarray, name: str) -> np.ndarray:
+    a = np.asarray(p, dtype=np.float64)
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise ValueError(f'{name} must have shape (K, 3), got {a.shape}')
+    return a
+
+
+def relative_se2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a^-1 * b`` for ``(K, 3)`` pose arrays: ``b`` expressed in the frame of ``a``."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    dx = b[..., 0] - a[..., 0]
+    dy = b[..., 1] - a[..., 1]
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(b[..., 2] - a[..., 2])],
+                    axis=-1)
+
+
+def apply_se2(theta: float, t: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """Apply the rigid transform ``(theta, t)`` to ``(K, 3)`` poses (or ``(K, 2)`` points)."""
+    p = np.asarray(poses, dtype=np.float64)
+    c, s = math.cos(theta), math.sin(theta)
+    out = p.copy()
+    out[:, 0] = c * p[:, 0] - s * p[:, 1] + t[0]
+    out[:, 1] = s * p[:, 0] + c * p[:, 1] + t[1]
+    if p.shape[1] > 2:
+        out[:, 2] = wrap_angle(p[:, 2] + theta)
+    return out
+
+
+def align_se2(est_xy: np.ndarray, gt_xy: np.ndarray) -> tuple[float, np.ndarray]:
+    """Rigid 2D alignment minimising ``sum ||R(theta) est + t - gt||^2`` (Umeyama, no scale).
+
+    Parameters
+    ----------
+    est_xy, gt_xy : np.ndarray
+        ``(K, 2)`` corresponding positions, ``K >= 1``.
+
+    Returns
+    -------
+    theta : float
+        Rotation (rad).
+    t : np.ndarray
+        ``(2,)`` translation (m). ``gt ~= R(theta) @ est + t``.
+    """
+    e = np.asarray(est_xy, dtype=np.float64)[:, :2]
+    g = np.asarray(gt_xy, dtype=np.float64)[:, :2]
+    if e.shape != g.shape or len(e) == 0:
+        raise ValueError(f'est_xy {e.shape} and gt_xy {g.shape} must be equal, non-empty')
+    me, mg = e.mean(axis=0), g.mean(axis=0)
+    ec, gc = e - me, g - mg
+    # For 2D, the SVD solution reduces to the angle of sum(conj(e) * g) in complex form.
+    num = float(np.sum(ec[:, 0] * gc[:, 1] - ec[:, 1] * gc[:, 0]))
+    den = float(np.sum(ec[:, 0] * gc[:, 0] + ec[:, 1] * gc[:, 1]))
+    theta = math.atan2(num, den) if (num != 0.0 or den != 0.0) else 0.0
+    c, s = math.cos(theta), math.sin(theta)
+    t = mg - np.array([c * me[0] - s * me[1], s * me[0] + c * me[1]])
+    return theta, t
+
+
+def match_stamps(query: np.ndarray, stamps: np.ndarray, max_dt: float) -> np.ndarray:
+    """For each query time, the index of the nearest entry of ``stamps``, or -1 if none is
+    within ``max_dt`` (s). ``stamps`` need not be sorted; ties go to the earlier index."""
+    q = np.asarray(query, dtype=np.float64).ravel()
+    s = np.asarray(stamps, dtype=np.float64).ravel()
+    out = np.full(q.shape, -1, dtype=np.int64)
+    if len(s) == 0 or len(q) == 0:
+        return out
+    order = np.argsort(s, kind='stable')
+    ss = s[order]
+    hi = np.clip(np.searchsorted(ss, q, side='left'), 0, len(ss) - 1)
+    lo = np.clip(hi - 1, 0, len(ss) - 1)
+    d_hi, d_lo = np.abs(ss[hi] - q), np.abs(ss[lo] - q)
+    best = np.where(d_lo <= d_hi, lo, hi)
+    dt = np.minimum(d_lo, d_hi)
+    ok = dt <= max_dt
+    out[ok] = order[best[ok]]
+    return out
+
+
+def associate(est_stamps: np.ndarray, gt_stamps: np.ndarray,
+              max_dt: float = 0.02) -> np.ndarray:
+    """One-to-one nearest-time association.
+
+    Returns
+    -------
+    np.ndarray
+        ``(M, 2)`` int64 index pairs ``[i_est, i_gt]`` with ``|t_est - t_gt| <= max_dt``, each
+        index used at most once (closest pairs win), sorted by ``i_est``.
+    """
+    e = np.asarray(est_stamps, dtype=np.float64).ravel()
+    g = np.asarray(gt_stamps, dtype=np.float64).ravel()
+    j = match_stamps(e, g, max_dt)
+    i = np.flatnonzero(j >= 0)
+    j = j[i]
+    if len(i) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    dt = np.abs(e[i] - g[j])
+    order = np.lexsort((i, dt))
+    _, first = np.unique(j[order], return_index=True)
+    keep = order[first]
+    pairs = np.column_stack([i[keep], j[keep]]).astype(np.int64)
+    return pairs[np.argsort(pairs[:, 0], kind='stable')]
+
+
+def _stats(x: np.ndarray) -> dict:
+    if len(x) == 0:
+        nan = float('nan')
+        return {'rmse': nan, 'mean': nan, 'median': nan, 'std': nan, 'max': nan}
+    return {'rmse': float(np.sqrt(np.mean(x * x))), 'mean': float(np.mean(x)),
+            'median': float(np.median(x)), 'std': float(np.std(x)), 'max': float(np.max(x))}
+
+
+def ate(est: np.ndarray, gt: np.ndarray) -> dict:
+    """Absolute trajectory error of associated poses, after SE(2) alignment of est onto gt.
+
+    Parameters
+    ----------
+    est, gt : np.ndarray
+        ``(K, 3)`` associated poses (row k of each is the same instant).
+
+    Returns
+    -------
+    dict
+        ``rmse``, ``mean``, ``median``, ``std``, ``max`` position error (m); ``rot_rmse_deg``
+        heading error after alignment; ``n``; ``align_theta`` (rad) and ``align_t`` (m) of
+        the alignment.
+    """
+    e, g = _poses(est, 'est'), _poses(gt, 'gt')
+    if e.shape != g.shape:
+        raise ValueError(f'est {e.shape} and gt {g.shape} must have the same shape')
+    if len(e) == 0:
+        raise ValueError('ate needs at least one associated pose')
+    theta, t = align_se2(e[:, :2], g[:, :2])
+    a = apply_se2(theta, t, e)
+    err = np.hypot(a[:, 0] - g[:, 0], a[:, 1] - g[:, 1])
+    rot = np.degrees(np.abs(wrap_angle(a[:, 2] - g[:, 2])))
+    out = _stats(err)
+    out.update(rot_rmse_deg=float(np.sqrt(np.mean(rot * rot))), n=int(len(e)),
+               align_theta=float(theta), align_t=[float(t[0]), float(t[1])])
+    return out
+
+
+def rpe(est: np.ndarray, gt: np.ndarray, delta: int = 1) -> dict:
+    """Relative pose error between poses ``delta`` indices apart.
+
+    Returns
+    -------
+    dict
+        ``trans_rmse``, ``trans_mean`` (m), ``rot_rmse_deg``, ``rot_mean_deg`` (deg), ``n``.
+    """
+    e, g = _poses(est, 'est'), _poses(gt, 'gt')
+    if e.shape != g.shape:
+        raise ValueError(f'est {e.shape} and gt {g.shape} must have the same shape')
+    if delta < 1:
+        raise ValueError(f'delta must be >= 1, got {delta}')
+    n = len(e) - delta
+    if n <= 0:
+        nan = float('nan')
+        return {'trans_rmse': nan, 'trans_mean': nan, 'rot_rmse_deg': nan, 'rot_mean_deg': nan,
+                'n': 0}
+    d_est = relative_se2(e[:-delta], e[delta:])
+    d_gt = relative_se2(g[:-delta], g[delta:])
+    err = relative_se2(d_gt, d_est)
+    tr = np.hypot(err[:, 0], err[:, 1])
+    rot = np.degrees(np.abs(err[:, 2]))
+    return {'trans_rmse': float(np.sqrt(np.mean(tr * tr))), 'trans_mean': float(tr.mean()),
+            'rot_rmse_deg': float(np.sqrt(np.mean(rot * rot))), 'rot_mean_deg': float(rot.mean()),
+            'n': int(n)}
+
+
+def relations_error(est_stamps: np.ndarray, est_poses: np.ndarray, rel_stamps: np.ndarray,
+                    rel_delta: np.ndarray, max_dt: float = RELATION_MAX_DT) -> dict:
+    """Kümmerle et al. (2009) relation-based error of a trajectory.
+
+    Parameters
+    ----------
+    est_stamps : np.ndarray
+        ``(K,)`` trajectory times (s).
+    est_poses : np.ndarray
+        ``(K, 3)`` estimated poses.
+    rel_stamps : np.ndarray
+        ``(R, 2)`` relation times ``[t1, t2]`` (s).
+    rel_delta : np.ndarray
+        ``(R, 3)`` true pose at ``t2`` in the frame of the pose at ``t1``.
+    max_dt : float
+        A relation is used only when both its times have a trajectory pose within ``max_dt``.
+
+    Returns
+    -------
+    dict
+        ``trans_mean``, ``trans_std``, ``trans_max`` (m), ``rot_mean_deg``, ``rot_std_deg``,
+        ``rot_max_deg`` (deg), ``trans_sq_mean`` (m^2), ``rot_sq_mean_deg`` (deg^2),
+        ``n_used``, ``n_total``. Means are NaN when no relation could be matched.
+    """
+    p = _poses(est_poses, 'est_poses')
+    rs = np.asarray(rel_stamps, dtype=np.float64).reshape(-1, 2)
+    rd = _poses(rel_delta, 'rel_delta')
+    if len(rs) != len(rd):
+        raise ValueError(f'rel_stamps has {len(rs)} rows but rel_delta has {len(rd)}')
+    i1 = match_stamps(rs[:, 0], est_stamps, max_dt)
+    i2 = match_stamps(rs[:, 1], est_stamps, max_dt)
+    ok = (i1 >= 0) & (i2 >= 0)
+    est_rel = relative_se2(p[i1[ok]], p[i2[ok]])
+    err = relative_se2(rd[ok], est_rel)  # delta*^-1 * delta
+    tr = np.hypot(err[:, 0], err[:, 1])
+    rot = np.degrees(np.abs(err[:, 2]))
+    nan = float('nan')
+    n = int(ok.sum())
+
+    def m(x: np.ndarray, f) -> float:
+        return float(f(x)) if n else nan
+
+    return {'trans_mean': m(tr, np.mean), 'trans_std': m(tr, np.std), 'trans_max': m(tr, np.max),
+            'rot_mean_deg': m(rot, np.mean), 'rot_std_deg': m(rot, np.std),
+            'rot_max_deg': m(rot, np.max), 'trans_sq_mean': m(tr * tr, np.mean),
+            'rot_sq_mean_deg': m(rot * rot, np.mean), 'n_used': n, 'n_total': int(len(rs))}
+
+
+def evaluate(est_path: str | os.PathLike, gt_path: str | os.PathLike | None = None,
+             relations_path: str | os.PathLike | None = None, max_dt: float = 0.02,
+             relations_max_dt: float = RELATION_MAX_DT, rpe_delta: int = 1) -> dict:
+    """Evaluate a trajectory file against a reference trajectory and/or relations.
+
+    ``est_path`` and ``gt_path`` are TUM or ``t x y theta`` files; a ``gt_path`` ending in
+    ``.relations`` is taken as ``relations_path``. ATE/RPE use the one-to-one nearest-time
+    association within ``max_dt`` (s); the relations error uses ``relations_max_dt``.
+
+    Returns
+    -------
+    dict
+        ``est`` (path), ``n_est``; with a reference: ``gt``, ``n_gt``, ``n_associated``,
+        ``ate`` (see ``ate``), ``rpe`` (see ``rpe``); with relations: ``relations_file``,
+        ``relations`` (see ``relations_error``).
+    """
+    # File reading lives in io/; imported here so that the rest of core/ stays numpy-only.
+    from pf_slam_nodes.io.trajectory import read_relations, read_trajectory
+
+    if gt_path is not None and str(gt_path).endswith('.relations') and relations_path is None:
+        gt_path, relations_path = None, gt_path
+    if gt_path is None and relations_path is None:
+        raise ValueError('evaluate needs a reference trajectory (gt_path) or relations_path')
+    t_est, p_est = read_trajectory(est_path)
+    out: dict = {'est': str(est_path), 'n_est': int(len(t_est))}
+    if gt_path is not None:
+        t_gt, p_gt = read_trajectory(gt_path)
+        pairs = associate(t_est, t_gt, max_dt=max_dt)
+        out.update(gt=str(gt_path), n_gt=int(len(t_gt)), n_associated=int(len(pairs)),
+                   max_dt=float(max_dt))
+        if len(pairs):
+            e, g = p_est[pairs[:, 0]], p_gt[pairs[:, 1]]
+            out['ate'] = ate(e, g)
+            out['rpe'] = rpe(e, g, delta=rpe_delta)
+    if relations_path is not None:
+        rs, rd = read_relations(relations_path)
+        out['relations_file'] = str(relations_path)
+        out['relations'] = relations_error(t_est, p_est, rs, rd, max_dt=relations_max_dt)
+    return out
+
+
+def format_evaluation(res: dict) -> str:
+    """Human-readable lines for ``pf-slam eval``."""
+    lines = [f"estimate: {res['est']} ({res['n_est']} poses)"]
+    if 'gt' in res:
+        lines.append(f"reference: {res['gt']} ({res['n_gt']} poses), associated "
+                     f"{res['n_associated']} within {res['max_dt'] * 1e3:.0f} ms")
+        if 'ate' in res:
+            a, r = res['ate'], res['rpe']
+            lines.append(f"ATE  rmse {a['rmse']:.4f} m  mean {a['mean']:.4f}  median "
+                         f"{a['median']:.4f}  max {a['max']:.4f}  (heading rmse "
+                         f"{a['rot_rmse_deg']:.2f} deg)")
+            lines.append(f"RPE  trans rmse {r['trans_rmse']:.4f} m  mean {r['trans_mean']:.4f}"
+                         f"  rot mean {r['rot_mean_deg']:.3f} deg  (n={r['n']})")
+        else:
+            lines.append('ATE/RPE: no pose could be associated')
+    if 'relations' in res:
+        q = res['relations']
+        lines.append(f"relations ({res['relations_file']}): used {q['n_used']}/{q['n_total']}")
+        lines.append(f"  translational {q['trans_mean']:.4f} +- {q['trans_std']:.4f} m   "
+                     f"rotational {q['rot_mean_deg']:.3f} +- {q['rot_std_deg']:.3f} deg")
+    return '\n'.join(lines)
