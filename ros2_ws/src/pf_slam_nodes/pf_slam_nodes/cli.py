@@ -1,19 +1,102 @@
-"""The `pf-slam` command."""
+"""The `pf-slam` command: convert logs to bags, run the graph on a bag, evaluate, benchmark."""
 from __future__ import annotations
 
 import argparse
+import json
 import sys
+
+from .graph import RunError
+from .io.bag import BagError
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="pf-slam", description="Online particle-filter SLAM on ROS 2.")
-    sub = p.add_subparsers(dest="command", required=True)
+    p = argparse.ArgumentParser(
+        prog="pf-slam",
+        description="Online particle-filter SLAM as a ROS 2 node graph (rclpy).",
+        epilog="Example: pf-slam convert carmen intel.clf intel_bag && "
+               "pf-slam run intel_bag --out runs/intel && "
+               "pf-slam eval --est runs/intel/trajectory.tum --gt intel.relations")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    conv = sub.add_parser("convert", help="convert a dataset log to a rosbag2 (MCAP)")
+    csub = conv.add_subparsers(dest="format", required=True, metavar="FORMAT")
+    c = csub.add_parser("carmen", help="CARMEN log (FLASER/ROBOTLASER1/ODOM) -> /scan + /odom")
+    c.add_argument("log")
+    c.add_argument("out_bag")
+    c.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
+    m = csub.add_parser("mines", help="Mines wheel-encoder + URG log -> /encoders + /scan")
+    m.add_argument("dat")
+    m.add_argument("out_bag")
+    m.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
+
+    r = sub.add_parser("run", help="replay a bag through the SLAM graph and write map/trajectory")
+    r.add_argument("bag")
+    r.add_argument("--out", required=True, help="output folder")
+    r.add_argument("--params", help="ROS 2 parameter YAML (see config/)")
+    r.add_argument("--rate", default="max", help="'max' (lossless, paced on the pipeline), 1 (real time) or N")
+    r.add_argument("--processes", choices=["single", "multi"], default="single",
+                   help="one process with one executor, or one process per node over DDS")
+    r.add_argument("--particles", type=int, help="number of particles (filter.num_particles)")
+    r.add_argument("--seed", type=int, help="random seed (filter.seed)")
+    r.add_argument("--snapshot-every", type=int, default=200, help="snapshot PNG every N scans (0: none)")
+
+    e = sub.add_parser("eval", help="ATE/RPE against a reference trajectory; Kümmerle relations error")
+    e.add_argument("--est", required=True, help="estimated trajectory (TUM)")
+    e.add_argument("--gt", help="reference trajectory (TUM or 't x y theta'), or a .relations file")
+    e.add_argument("--relations", help="Kümmerle et al. 2009 relations file")
+    e.add_argument("--json", action="store_true", help="print JSON")
+
+    si = sub.add_parser("simulate-indoor", help="write the seeded indoor sample bag with ground truth")
+    si.add_argument("--out", required=True)
+    si.add_argument("--seed", type=int, default=0)
+    si.add_argument("--duration", type=float, default=60.0)
+
+    b = sub.add_parser("bench", help="benchmarks (message layout; more in `make bench`)")
+    b.add_argument("what", choices=["messages"], nargs="?", default="messages")
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    return 0
+    try:
+        return _dispatch(args)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    except (RunError, BagError, ValueError, OSError) as e:  # known failures: one line, no traceback
+        print(f"pf-slam {args.command}: error: {e}", file=sys.stderr)
+        return 1
+
+
+def _dispatch(args: argparse.Namespace) -> int:
+    if args.command == "convert":
+        from .io import convert
+        if args.format == "carmen":
+            rep = convert.convert_carmen(args.log, args.out_bag, storage=args.storage)
+        else:
+            rep = convert.convert_mines(args.dat, args.out_bag, storage=args.storage)
+        print(rep.summary())
+        return 0
+    if args.command == "run":
+        from .graph import run_cli
+        return run_cli(args)
+    if args.command == "eval":
+        from .core.metrics import evaluate, format_evaluation
+        if not args.gt and not args.relations:
+            raise ValueError("eval needs --gt and/or --relations")
+        res = evaluate(args.est, args.gt, relations_path=args.relations)
+        print(json.dumps(res, indent=2) if args.json else format_evaluation(res))
+        return 0
+    if args.command == "simulate-indoor":
+        from .sim.indoor import simulate_indoor
+        res = simulate_indoor(args.out, seed=args.seed, duration_s=args.duration)
+        print(res)
+        return 0
+    if args.command == "bench":
+        from .bench import messages
+        print(messages.format_table(messages.run()))
+        return 0
+    raise AssertionError(args.command)
 
 
 if __name__ == "__main__":

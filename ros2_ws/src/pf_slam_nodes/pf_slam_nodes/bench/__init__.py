@@ -1,0 +1,1 @@
+"""Benchmarks (`pf-slam bench ...`)."""

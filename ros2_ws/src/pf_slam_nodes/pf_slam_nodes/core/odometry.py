@@ -1,0 +1,151 @@
+"""Odometry bookkeeping between scans: a buffer of odometry poses and its lookup at scan times.
+
+ROS-free so that the predictor node stays thin and the pairing rules are unit-tested.
+"""
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from typing import Optional
+
+import numpy as np
+
+from .motion import integrate_diff_drive, wheel_odometry, wrap_angle
+
+
+class OdometryBuffer:
+    """Odometry poses in arrival order, looked up at scan stamps.
+
+    Two pairing rules (``sync``):
+
+    ``'exact'``
+        Logs whose odometry is recorded with each scan (CARMEN laser lines, the Mines log): the
+        n-th scan with stamp ``t`` pairs with the n-th odometry message with stamp ``t``. This
+        survives repeated and backward-stepping timestamps (the Intel log has both).
+    ``'interpolate'``
+        Asynchronous streams (wheel encoders at 100 Hz): linear interpolation between the two
+        odometry poses that bracket the scan stamp (yaw interpolated on the circle).
+
+    Stamps are integer nanoseconds.
+    """
+
+    def __init__(self, sync: str = "interpolate") -> None:
+        if sync not in ("exact", "interpolate"):
+            raise ValueError(f"odom_sync must be 'exact' or 'interpolate', got {sync!r}")
+        self.sync = sync
+        self._stamps: list[int] = []
+        self._poses: list[np.ndarray] = []
+        self._exact: dict[int, list[int]] = defaultdict(list)
+        self._scan_seen: dict[int, int] = defaultdict(int)
+        self._cursor = 0
+        self.backward_steps = 0
+        self.missing = 0
+
+    def __len__(self) -> int:
+        return len(self._stamps)
+
+    def add(self, stamp_ns: int, pose: np.ndarray) -> None:
+        if self._stamps and stamp_ns < self._stamps[-1]:
+            self.backward_steps += 1
+        self._exact[stamp_ns].append(len(self._stamps))
+        self._stamps.append(int(stamp_ns))
+        self._poses.append(np.asarray(pose, dtype=np.float64).reshape(3))
+
+    @property
+    def last(self) -> Optional[np.ndarray]:
+        return self._poses[-1] if self._poses else None
+
+    def has_exact(self, stamp_ns: int, ahead: int = 0) -> bool:
+        """True when the odometry for the next (+ ``ahead``) scan with this stamp has arrived."""
+        return self._scan_seen[stamp_ns] + ahead < len(self._exact.get(stamp_ns, ()))
+
+    def lookup(self, stamp_ns: int, final: bool = False) -> Optional[np.ndarray]:
+        """Odometry pose at a scan stamp, or None when it has not arrived yet.
+
+        Call once per scan, in scan order (the exact rule counts occurrences). With
+        ``final=True`` (end of stream, or a later scan already resolved) a pose is always
+        returned: the best available (nearest earlier odometry), counted in ``missing``.
+        """
+        if not self._poses:
+            return None
+        if self.sync == "exact":
+            n = self._scan_seen[stamp_ns]
+            hits = self._exact.get(stamp_ns, [])
+            if n < len(hits):
+                self._scan_seen[stamp_ns] += 1
+                self._cursor = hits[n]
+                return self._poses[hits[n]].copy()
+            if not final:
+                return None
+            self._scan_seen[stamp_ns] += 1
+            self.missing += 1
+            return self._poses[self._cursor].copy()
+        # interpolate: first odometry at or after the stamp, from the cursor on
+        j = self._cursor
+        while j < len(self._stamps) and self._stamps[j] < stamp_ns:
+            j += 1
+        if j == len(self._stamps):
+            if not final:
+                return None
+            self.missing += 1
+            self._cursor = len(self._stamps) - 1
+            return self._poses[-1].copy()
+        self._cursor = max(j - 1, 0)
+        t1, p1 = self._stamps[j], self._poses[j]
+        if j == 0 or t1 == stamp_ns:
+            return p1.copy()
+        t0, p0 = self._stamps[j - 1], self._poses[j - 1]
+        if t0 > stamp_ns or t1 == t0:
+            return p1.copy()
+        a = (stamp_ns - t0) / (t1 - t0)
+        out = p0 + a * (p1 - p0)
+        out[2] = float(wrap_angle(p0[2] + a * float(wrap_angle(p1[2] - p0[2]))))
+        return out
+
+    def trim(self) -> None:
+        """Forget poses before the cursor (keeps memory bounded on long runs)."""
+        if self.sync == "interpolate" and self._cursor > 1000:
+            k = self._cursor - 1
+            del self._stamps[:k], self._poses[:k]
+            self._cursor -= k
+            self._exact.clear()
+
+
+class WheelOdometryIntegrator:
+    """Integrates cumulative wheel angles (rad) and optional gyro yaw increments into a pose.
+
+    Differential drive, midpoint rule (:func:`integrate_diff_drive`). When gyro increments are
+    given (FOG), the yaw change of a step is their sum instead of the wheels' difference.
+    """
+
+    def __init__(self, left_diameter_m: float, right_diameter_m: float, wheel_base_m: float) -> None:
+        for name, v in (("left_diameter_m", left_diameter_m), ("right_diameter_m", right_diameter_m),
+                        ("wheel_base_m", wheel_base_m)):
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be > 0, got {v!r}")
+        self.left_diameter_m = float(left_diameter_m)
+        self.right_diameter_m = float(right_diameter_m)
+        self.wheel_base_m = float(wheel_base_m)
+        self.pose = np.zeros(3)
+        self._last: Optional[tuple[float, float]] = None
+        self._pending_gyro_yaw = 0.0
+        self.use_gyro = False
+
+    def add_gyro(self, dyaw_rad: float) -> None:
+        """Accumulate a gyro yaw increment (rad) to be used by the next wheel step."""
+        self.use_gyro = True
+        self._pending_gyro_yaw += float(dyaw_rad)
+
+    def step(self, left_rad: float, right_rad: float) -> np.ndarray:
+        """Advance with new cumulative wheel angles; returns the pose (odometry frame)."""
+        if self._last is None:
+            self._last = (left_rad, right_rad)
+            return self.pose.copy()
+        d, w = wheel_odometry(left_rad - self._last[0], right_rad - self._last[1],
+                              self.left_diameter_m, self.right_diameter_m, self.wheel_base_m)
+        if self.use_gyro:
+            w = self._pending_gyro_yaw
+            self._pending_gyro_yaw = 0.0
+        self.pose = integrate_diff_drive(self.pose, float(d), float(w))
+        self._last = (left_rad, right_rad)
+        return self.pose.copy()

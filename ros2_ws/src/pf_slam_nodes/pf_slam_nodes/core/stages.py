@@ -1,0 +1,201 @@
+"""The stages of the filter as the node graph runs them, ROS-free.
+
+The predictor, correlator and mapper nodes each own one of these objects and only convert
+messages around them; :class:`~pf_slam_nodes.core.slam.ParticleFilterSlam` chains the same
+objects in one loop. The map reaches the correlation stage exactly as it does over ROS: after
+each integration the mapper emits a *patch*, the int8 occupancy (nav_msgs/OccupancyGrid values)
+of the bounding box of the cells that scan touched; the correlation stage keeps a likelihood
+field of the whole grid and updates it where the patch changes the obstacles. So the graph and
+the reference loop compute the same trajectory bit for bit, and no full grid crosses the
+middleware per scan.
+
+Random streams: one ``np.random.Generator`` per stage, seeded ``[seed, k]`` (k = 1 motion,
+2 resampling), so a stage's draws do not depend on which process it runs in.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Optional
+
+import numpy as np
+
+from .config import CorrelationConfig, FilterConfig, GridConfig, OdometryMotionConfig, ResampleConfig
+from .correlation import GridLikelihoodField, correlate
+from .filter import n_eff, resample, update_log_weights
+from .grid import LogOddsGrid
+from .motion import relative_pose, sample_odometry_motion
+from .scan import scan_to_points, transform_points
+
+MOTION_STREAM = 1
+RESAMPLE_STREAM = 2
+
+
+def grid_geometry(cfg: GridConfig, center_xy: np.ndarray) -> tuple[int, int, np.ndarray]:
+    """(height, width, origin_xy) of the grid that :class:`LogOddsGrid` builds for ``center_xy``."""
+    res = float(cfg.resolution_m)
+    width = int(math.ceil(cfg.size_x_m / res - 1e-9))
+    height = int(math.ceil(cfg.size_y_m / res - 1e-9))
+    if cfg.origin_x_m is not None:
+        origin = np.array([cfg.origin_x_m, cfg.origin_y_m], dtype=np.float64)
+    else:
+        c = np.asarray(center_xy, dtype=np.float64).reshape(-1)[:2]
+        origin = c - 0.5 * res * np.array([width, height], dtype=np.float64)
+    return height, width, origin
+
+
+@dataclasses.dataclass
+class MapPatch:
+    """The occupancy of a rectangle of the grid after an integration.
+
+    ``occupancy``: int8 ``(h, w)`` (-1 unknown, 0..100), row = y; ``origin``: world ``(x, y)`` of
+    its cell (0, 0) corner (m); ``resolution`` (m).
+    """
+
+    occupancy: np.ndarray
+    resolution: float
+    origin: np.ndarray
+
+
+class PredictionStage:
+    """Owns the particle set between corrections; gates updates on travelled distance."""
+
+    def __init__(self, filter_cfg: FilterConfig, motion_cfg: OdometryMotionConfig) -> None:
+        self.filter_cfg = filter_cfg
+        self.motion_cfg = motion_cfg
+        self.rng = np.random.default_rng([filter_cfg.seed, MOTION_STREAM])
+        n = filter_cfg.num_particles
+        self.particles = np.zeros((n, 3))
+        self.log_weights = np.full(n, -math.log(n))
+        self.odom_at_update: Optional[np.ndarray] = None
+
+    def predict(self, odom_pose: np.ndarray) -> tuple[bool, np.ndarray]:
+        """Odometry pose at a scan -> (update?, increment since the last correction).
+
+        The first scan always updates (it starts the map; particles are set to the odometry
+        pose, so the map frame is the odometry frame at that moment). Otherwise the particles
+        move only when the increment passes the motion gate.
+        """
+        odom = np.asarray(odom_pose, dtype=np.float64).reshape(3)
+        if self.odom_at_update is None:
+            self.particles[:] = odom
+            self.odom_at_update = odom.copy()
+            return True, np.zeros(3)
+        fc = self.filter_cfg
+        delta = relative_pose(self.odom_at_update, odom)
+        if math.hypot(delta[0], delta[1]) < fc.min_travel_m and abs(delta[2]) < fc.min_rotation_rad:
+            return False, delta
+        self.particles = sample_odometry_motion(self.particles, delta, self.motion_cfg, self.rng)
+        self.odom_at_update = odom.copy()
+        return True, delta
+
+    def set_corrected(self, particles: np.ndarray, log_weights: np.ndarray) -> None:
+        self.particles = np.asarray(particles, dtype=np.float64).reshape(-1, 3).copy()
+        self.log_weights = np.asarray(log_weights, dtype=np.float64).copy()
+
+
+@dataclasses.dataclass
+class Correction:
+    particles: np.ndarray      # (N, 3) after correction (and resampling)
+    log_weights: np.ndarray    # (N,) normalised
+    pose: np.ndarray           # (3,) best particle before resampling
+    resampled: bool
+    matched: bool              # False when there was no map to match against
+
+
+class CorrectionStage:
+    """Scan-to-map correlation of every particle, weight update, resampling."""
+
+    def __init__(self, filter_cfg: FilterConfig, grid_cfg: GridConfig, corr_cfg: CorrelationConfig,
+                 resample_cfg: ResampleConfig) -> None:
+        self.filter_cfg = filter_cfg
+        self.grid_cfg = grid_cfg
+        self.corr_cfg = corr_cfg
+        self.resample_cfg = resample_cfg
+        self.rng = np.random.default_rng([filter_cfg.seed, RESAMPLE_STREAM])
+        self.field: Optional[GridLikelihoodField] = None
+        self.pose = np.zeros(3)
+        self.num_corrections = 0
+        self.num_resamples = 0
+
+    def apply_patch(self, patch: MapPatch) -> int:
+        """Bring the likelihood field up to date with a map patch; returns the cells changed.
+
+        The field covers the grid the mapping stage builds around the first corrected pose.
+        Cells of the patch outside that grid are ignored.
+        """
+        if self.field is None:
+            h, w, origin = grid_geometry(self.grid_cfg, self.pose[:2])
+            self.field = GridLikelihoodField(h, w, float(self.grid_cfg.resolution_m), origin, self.corr_cfg)
+        f = self.field
+        occ = np.asarray(patch.occupancy)
+        c0, r0 = np.rint((np.asarray(patch.origin, float) - f.origin) / f.resolution).astype(np.int64)
+        rows = r0 + np.arange(occ.shape[0])
+        cols = c0 + np.arange(occ.shape[1])
+        rk, ck = (rows >= 0) & (rows < f.height), (cols >= 0) & (cols < f.width)
+        if not rk.any() or not ck.any():
+            return 0
+        flat = (rows[rk][:, None] * f.width + cols[ck][None, :]).reshape(-1)
+        obstacle = (occ[np.ix_(rk, ck)] >= self.corr_cfg.occupied_threshold).reshape(-1)
+        return f.set_obstacles(flat, obstacle)
+
+    def correct(self, particles: np.ndarray, log_weights: np.ndarray, ranges: np.ndarray,
+                angles: np.ndarray, range_min: float = 0.0, range_max: float = math.inf) -> Correction:
+        """Correct a predicted set with a scan (ranges (B,), beam angles (B,) in the sensor frame)."""
+        particles = np.asarray(particles, dtype=np.float64).reshape(-1, 3)
+        log_w = np.asarray(log_weights, dtype=np.float64)
+        pts = scan_to_points(ranges, angles, max(range_min, 1e-6), min(range_max, self.corr_cfg.range_max_m))
+        offset = self.filter_cfg.sensor_offset
+        if np.any(offset):
+            pts = transform_points(pts, offset)
+        matched = self.field is not None and pts.shape[0] > 0
+        if matched:
+            particles, scores = correlate(particles, pts, self.field, self.corr_cfg)
+            log_w = update_log_weights(log_w, scores, self.corr_cfg.temperature)
+        pose = particles[int(np.argmax(log_w))].copy()
+        n = log_w.size
+        resampled = bool(n_eff(log_w) < self.resample_cfg.neff_threshold * n)
+        if resampled:
+            idx = resample(log_w, self.resample_cfg.method, self.rng)
+            particles = particles[idx]
+            log_w = np.full(n, -math.log(n))
+            self.num_resamples += 1
+        self.pose = pose
+        self.num_corrections += 1
+        return Correction(particles, log_w, pose, resampled, bool(matched))
+
+
+class MappingStage:
+    """The log-odds grid: integrates scans at corrected poses, exports occupancy."""
+
+    def __init__(self, filter_cfg: FilterConfig, grid_cfg: GridConfig) -> None:
+        self.filter_cfg = filter_cfg
+        self.grid_cfg = grid_cfg
+        self.grid: Optional[LogOddsGrid] = None
+        self.pose: Optional[np.ndarray] = None
+
+    @property
+    def ready(self) -> bool:
+        return self.grid is not None
+
+    def integrate(self, pose: np.ndarray, ranges: np.ndarray, angles: np.ndarray,
+                  range_min: float = 0.0, range_max: float = math.inf) -> MapPatch:
+        """Integrate a scan at a corrected pose; returns the patch of the cells it touched."""
+        pose = np.asarray(pose, dtype=np.float64).reshape(3)
+        if self.grid is None:
+            self.grid = LogOddsGrid(self.grid_cfg, center_xy=pose[:2])
+        g = self.grid
+        g.integrate_scan(pose, ranges, angles, self.filter_cfg.sensor_offset, range_min, range_max)
+        self.pose = pose.copy()
+        idx = g.last_touched_idx
+        if idx.size == 0:
+            return MapPatch(np.zeros((0, 0), np.int8), g.resolution, g.origin.copy())
+        rows, cols = idx // g.width, idx % g.width
+        bounds = (int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1)
+        return MapPatch(g.occupancy(bounds), g.resolution, g.bounds_origin(bounds))
+
+    def map_occupancy(self) -> tuple[np.ndarray, float, np.ndarray]:
+        """int8 occupancy of the explored part of the grid (the whole grid before any scan)."""
+        assert self.grid is not None
+        bounds = self.grid.touched_bounds
+        return self.grid.occupancy(bounds), self.grid.resolution, self.grid.bounds_origin(bounds)

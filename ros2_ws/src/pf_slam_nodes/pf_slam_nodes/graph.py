@@ -1,0 +1,345 @@
+"""Builds and runs the node graph on a bag: `pf-slam run`.
+
+One process with one executor (`single`), or one process per node over DDS (`multi`); the
+nodes are the same classes either way. A recorder node in this process collects the pose of
+every scan (particles/updated) and the final /map, and writes the outputs.
+"""
+from __future__ import annotations
+
+import json
+import os
+import resource
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import yaml
+
+from .io.bag import bag_info, deserialize, read_bag
+from .io.mapfile import render_snapshot, write_map
+from .io.trajectory import write_tum
+
+NODE_NAMES = ("bag_replay", "predictor", "correlator", "mapper")
+CONFIG_DIR = Path(__file__).resolve().parents[1] / "config"
+
+
+class RunError(Exception):
+    """A run cannot start or did not complete; the message says why."""
+
+
+# ---------------------------------------------------------------------------- parameters
+def flatten(d: dict, prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        name = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(flatten(v, name + "."))
+        else:
+            out[name] = v
+    return out
+
+
+def unflatten(flat: dict[str, Any]) -> dict:
+    out: dict = {}
+    for name, v in flat.items():
+        *parents, leaf = name.split(".")
+        d = out
+        for p in parents:
+            d = d.setdefault(p, {})
+        d[leaf] = v
+    return out
+
+
+def load_params(path: str | os.PathLike) -> dict[str, dict[str, Any]]:
+    """A ROS 2 parameter YAML -> {node name or '/**': flat {dotted name: value}}."""
+    p = Path(path)
+    try:
+        doc = yaml.safe_load(p.read_text())
+    except (OSError, yaml.YAMLError) as e:
+        raise RunError(f"{p}: cannot read parameter file: {e}") from None
+    if not isinstance(doc, dict):
+        raise RunError(f"{p}: not a ROS 2 parameter file (expected a mapping of node names)")
+    out: dict[str, dict[str, Any]] = {}
+    for node, body in doc.items():
+        if not isinstance(body, dict) or "ros__parameters" not in body:
+            raise RunError(f"{p}: section {node!r} has no 'ros__parameters'")
+        key = node if node == "/**" else str(node).lstrip("/")
+        if key != "/**" and key not in NODE_NAMES + ("texture",):
+            raise RunError(f"{p}: unknown node {node!r}; nodes: {', '.join(NODE_NAMES)}")
+        out.setdefault(key, {}).update(flatten(body["ros__parameters"] or {}))
+    return out
+
+
+def node_params(layers: list[dict[str, dict[str, Any]]], node: str) -> dict[str, Any]:
+    """Merge layers (later wins): per layer, '/**' then the node's own section."""
+    merged: dict[str, Any] = {}
+    for layer in layers:
+        merged.update(layer.get("/**", {}))
+        merged.update(layer.get(node, {}))
+    return merged
+
+
+# ---------------------------------------------------------------------------- bag inspection
+def detect_inputs(bag: str, info: dict) -> dict[str, dict[str, Any]]:
+    """Parameters implied by the bag's topics: odometry source and how odometry pairs with scans."""
+    topics = info["topics"]
+    if "/scan" not in topics:
+        found = ", ".join(f"{t} [{m}]" for t, (m, _) in sorted(topics.items())) or "none"
+        raise RunError(f"{bag}: no /scan (sensor_msgs/msg/LaserScan) topic; found: {found}")
+    if "/odom" in topics:
+        source, topic = "odom", "/odom"
+    elif "/encoders" in topics:
+        source, topic = "encoders", "/encoders"
+    else:
+        raise RunError(f"{bag}: needs /odom (nav_msgs/msg/Odometry) or /encoders "
+                       f"(sensor_msgs/msg/JointState) for the motion model; found: {', '.join(topics)}")
+    scan_stamps, odom_stamps = [], set()
+    for t, msgtype, _, raw in read_bag(bag, topics=["/scan", topic]):
+        msg = deserialize(raw, msgtype)
+        ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        if t == "/scan":
+            scan_stamps.append(ns)
+        else:
+            odom_stamps.add(ns)
+        if len(scan_stamps) >= 200:
+            break
+    exact = bool(scan_stamps) and sum(s in odom_stamps for s in scan_stamps) >= 0.9 * len(scan_stamps)
+    return {"predictor": {"odometry_source": source, "odom_sync": "exact" if exact else "interpolate"}}
+
+
+# ---------------------------------------------------------------------------- the run
+@dataclass
+class RunResult:
+    summary: dict
+    stamps_ns: list[int] = field(default_factory=list)
+    poses: list[np.ndarray] = field(default_factory=list)
+
+
+class _Recorder:
+    """Collects per-scan poses and the latest /map; renders snapshots; prints progress."""
+
+    def __init__(self, node, out_dir: Path, scans_total: int, bag_duration_s: float,
+                 snapshot_every: int, progress: bool) -> None:
+        from nav_msgs.msg import OccupancyGrid
+        from pf_slam_interfaces.msg import ParticleArray
+
+        from .ros import qos, topics
+        self.node = node
+        self.out_dir = out_dir
+        self.scans_total = scans_total
+        self.bag_duration_s = bag_duration_s
+        self.snapshot_every = snapshot_every
+        self.progress = progress
+        self.stamps: list[int] = []
+        self.poses: list[np.ndarray] = []
+        self.updates = 0
+        self.map_msg = None
+        self.t0 = time.monotonic()
+        self._last_print = 0.0
+        node.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
+        node.create_subscription(OccupancyGrid, topics.MAP, self._on_map, qos.latched())
+
+    def _on_updated(self, msg) -> None:
+        from .ros import convert
+        self.stamps.append(convert.stamp_to_ns(msg.header.stamp))
+        self.poses.append(np.array(msg.pose, dtype=np.float64))
+        self.updates += int(msg.update)
+        k = len(self.poses)
+        if self.snapshot_every and k % self.snapshot_every == 0 and self.map_msg is not None:
+            self.snapshot(f"scan_{k:06d}.png")
+        self.print_progress()
+
+    def _on_map(self, msg) -> None:
+        self.map_msg = msg
+
+    def snapshot(self, name: str) -> None:
+        from .ros import convert
+        occ, res, origin = convert.msg_to_grid(self.map_msg)
+        traj = np.array(self.poses)[:, :2] if self.poses else np.zeros((0, 2))
+        render_snapshot(occ, res, origin, traj, self.out_dir / "snapshots" / name,
+                        pose=self.poses[-1] if self.poses else None,
+                        title=f"scan {len(self.poses)}")
+
+    def print_progress(self, final: bool = False) -> None:
+        now = time.monotonic()
+        if not self.progress or (not final and now - self._last_print < 0.5):
+            return
+        self._last_print = now
+        k, n = len(self.poses), max(self.scans_total, 1)
+        wall = now - self.t0
+        rtf = (self.bag_duration_s * k / n) / wall if wall > 0 else 0.0
+        eta = wall * (n - k) / k if k else float("nan")
+        sys.stderr.write(f"\r[pf-slam] scans {k}/{n}  RTF {rtf:5.1f}x  ETA {eta:5.0f} s ")
+        if final:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+
+def _make_node(name: str, context, overrides: dict[str, Any]):
+    from rclpy.parameter import Parameter
+
+    from .nodes.bag_replay import BagReplay
+    from .nodes.correlator import Correlator
+    from .nodes.mapper import Mapper
+    from .nodes.predictor import Predictor
+    cls = {"bag_replay": BagReplay, "predictor": Predictor, "correlator": Correlator, "mapper": Mapper}[name]
+    params = [Parameter(k, value=v) for k, v in overrides.items()]
+    return cls(context=context, parameter_overrides=params)
+
+
+def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, rate: str = "max",
+        processes: str = "single", overrides: dict[str, dict[str, Any]] | None = None,
+        snapshot_every: int = 200, progress: bool = True, idle_timeout_s: float = 60.0,
+        domain_id: int | None = None) -> RunResult:
+    """Replay `bag` through the graph and write the outputs into `out_dir`; returns the summary."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    if processes not in ("single", "multi"):
+        raise RunError(f"--processes must be 'single' or 'multi', got {processes!r}")
+    info = bag_info(bag)
+    layers = [detect_inputs(bag, info)]
+    if params_file:
+        layers.append(load_params(params_file))
+    layers.append({"bag_replay": {"bag": str(bag), "rate": str(rate)}})
+    if overrides:
+        layers.append(overrides)
+    per_node = {n: node_params(layers, n) for n in NODE_NAMES}
+    out = Path(out_dir)
+    (out / "snapshots").mkdir(parents=True, exist_ok=True)
+    scans_total = info["topics"]["/scan"][1]
+    bag_duration_s = info["duration_ns"] / 1e9
+    if domain_id is None:
+        domain_id = int(os.environ.get("ROS_DOMAIN_ID", "0"))
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain_id)
+    children: list[subprocess.Popen] = []
+    nodes = []
+    t_start = time.monotonic()
+    try:
+        rec_node = rclpy.create_node("pf_slam_recorder", context=ctx)
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(rec_node)
+        rec = _Recorder(rec_node, out, scans_total, bag_duration_s, snapshot_every, progress)
+        replay = None
+        if processes == "single":
+            for name in NODE_NAMES:
+                node = _make_node(name, ctx, per_node[name])
+                nodes.append(node)
+                ex.add_node(node)
+            replay = nodes[0]
+        else:
+            children = _spawn(per_node, domain_id, out)
+        last_progress, last_count = time.monotonic(), -1
+
+        def finished() -> bool:
+            if len(rec.poses) < scans_total:
+                return False
+            m = rec.map_msg
+            return m is not None and (m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
+                                      == rec.stamps[-1])
+
+        while not finished():
+            ex.spin_once(timeout_sec=0.05)
+            if len(rec.poses) != last_count:
+                last_count, last_progress = len(rec.poses), time.monotonic()
+            for c in children:
+                if c.poll() is not None:
+                    raise RunError(f"node process {c.args[2]} exited with code {c.returncode}; "
+                                   f"log: {out / 'logs'}")
+            if time.monotonic() - last_progress > idle_timeout_s:
+                raise RunError(f"no progress for {idle_timeout_s:.0f} s: {len(rec.poses)}/{scans_total} "
+                               "scans processed")
+        wall = time.monotonic() - t_start
+        rec.print_progress(final=True)
+        scans_published = replay.scans_published if replay is not None else scans_total
+    finally:
+        for c in children:
+            if c.poll() is None:
+                c.send_signal(signal.SIGINT)
+        for c in children:
+            try:
+                c.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                c.kill()
+                c.wait()
+        for node in nodes:
+            node.destroy_node()
+        if ctx.ok():
+            rclpy.shutdown(context=ctx)
+
+    from .ros import convert
+    occ, res, origin = convert.msg_to_grid(rec.map_msg)
+    write_map(out, occ, res, origin)
+    stamps = np.array(rec.stamps, dtype=np.int64)
+    poses = np.array(rec.poses)
+    write_tum(out / "trajectory.tum", stamps / 1e9, poses)
+    rec.snapshot("final.png")
+    peak = max(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
+               resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss) / 1024.0
+    summary = {
+        "bag": str(bag),
+        "bag_duration_s": round(bag_duration_s, 3),
+        "wall_time_s": round(wall, 3),
+        "real_time_factor": round(bag_duration_s / wall, 2) if wall > 0 else None,
+        "scans_in_bag": scans_total,
+        "scans_published": int(scans_published),
+        "scans_processed": len(rec.poses),
+        "scans_dropped": int(scans_published) - len(rec.poses),
+        "scans_corrected": rec.updates,
+        "particles": int(per_node["predictor"].get("filter.num_particles", _default_particles())),
+        "processes": processes,
+        "rate": rate,
+        "peak_rss_mb": round(peak, 1),
+        "complete": True,
+    }
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    return RunResult(summary, rec.stamps, rec.poses)
+
+
+def _default_particles() -> int:
+    from .core.config import FilterConfig
+    return FilterConfig().num_particles
+
+
+def _spawn(per_node: dict[str, dict[str, Any]], domain_id: int, out: Path) -> list[subprocess.Popen]:
+    """Start one process per node, each with its own parameter file."""
+    logs = out / "logs"
+    logs.mkdir(parents=True, exist_ok=True)
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    procs = []
+    tmp = Path(tempfile.mkdtemp(prefix="pf_slam_params_"))
+    for name in NODE_NAMES:
+        pfile = tmp / f"{name}.yaml"
+        pfile.write_text(yaml.safe_dump({name: {"ros__parameters": unflatten(per_node[name])}}))
+        log = open(logs / f"{name}.log", "w")
+        procs.append(subprocess.Popen(
+            [sys.executable, "-m", f"pf_slam_nodes.nodes.{name}", "--ros-args", "--params-file", str(pfile)],
+            env=env, stdout=log, stderr=subprocess.STDOUT))
+    return procs
+
+
+def run_cli(args: Any, log: Callable[[str], None] = print) -> int:
+    res = run(args.bag, args.out, params_file=args.params, rate=args.rate, processes=args.processes,
+              overrides=_cli_overrides(args), snapshot_every=args.snapshot_every)
+    s = res.summary
+    log(f"{s['scans_processed']} scans ({s['scans_corrected']} corrected), {s['scans_dropped']} dropped, "
+        f"wall {s['wall_time_s']:.1f} s, RTF {s['real_time_factor']}x; outputs in {args.out}")
+    return 0
+
+
+def _cli_overrides(args: Any) -> dict[str, dict[str, Any]]:
+    o: dict[str, Any] = {}
+    if getattr(args, "particles", None) is not None:
+        o["filter.num_particles"] = args.particles
+    if getattr(args, "seed", None) is not None:
+        o["filter.seed"] = args.seed
+    return {"/**": o} if o else {}

@@ -1,0 +1,141 @@
+"""bag_replay: publishes a rosbag2 (mcap or sqlite3) into the graph, with /clock from the bag.
+
+Messages are published as recorded (serialized CDR, never deserialized here), in record-time
+order. Rates: `rate:=max` paces on the pipeline: at most `max_in_flight` scans are published
+and not yet processed (counted on particles/updated), so nothing is dropped and the run is
+reproducible; `rate:=1` is real time, `rate:=N` N times real time. At the end of the bag the
+number of scans published goes out on pf_slam/replay_status (latched).
+"""
+from __future__ import annotations
+
+import importlib
+import time
+from typing import Any
+
+from pf_slam_interfaces.msg import ParticleArray
+from rclpy.node import Node
+from rclpy.publisher import Publisher
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import UInt64
+
+from ..io.bag import bag_info, read_bag
+from ..ros import convert, qos, topics
+from .common import param, run_node
+
+LATCHED_TOPICS = ("/tf_static",)
+
+
+def message_class(msgtype: str) -> Any:
+    """'sensor_msgs/msg/LaserScan' -> the rclpy message class; ValueError if not installed."""
+    pkg, _, name = msgtype.rpartition("/msg/")
+    try:
+        return getattr(importlib.import_module(f"{pkg}.msg"), name)
+    except (ImportError, AttributeError):
+        raise ValueError(f"message type {msgtype!r} is not available in this ROS install") from None
+
+
+def parse_rate(rate: str) -> float | None:
+    """'max' -> None; '1', '2.5' -> that factor (> 0)."""
+    if rate == "max":
+        return None
+    try:
+        r = float(rate)
+    except ValueError:
+        r = -1.0
+    if not r > 0:
+        raise ValueError(f"parameter 'rate' must be 'max' or a positive number, got {rate!r}")
+    return r
+
+
+class BagReplay(Node):
+    def __init__(self, **kwargs) -> None:
+        super().__init__("bag_replay", **kwargs)
+        self.bag = param(self, "bag", "")
+        if not self.bag:
+            raise ValueError("parameter 'bag' (path of a rosbag2) is required")
+        self.rate = parse_rate(str(param(self, "rate", "max")))
+        self.max_in_flight = param(self, "max_in_flight", 2)
+        self.scan_topic = param(self, "scan_topic", "/scan")
+        self.clock_period_ns = int(param(self, "clock_period_s", 0.01) * 1e9)
+        info = bag_info(self.bag)
+        self.info = info
+        self.scans_in_bag = info["topics"].get(self.scan_topic, ("", 0))[1]
+        self.publishers_: dict[str, Publisher] = {}
+        for topic, (msgtype, _) in info["topics"].items():
+            profile = qos.latched() if topic in LATCHED_TOPICS else qos.pipeline(10000)
+            self.publishers_[topic] = self.create_publisher(message_class(msgtype), topic, profile)
+        self.pub_clock = self.create_publisher(Clock, topics.CLOCK, qos.outputs(10))
+        self.pub_status = self.create_publisher(UInt64, topics.REPLAY_STATUS, qos.latched())
+        self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_progress,
+                                 qos.pipeline(), raw=True)
+        self.messages = read_bag(self.bag)
+        self.pending: tuple[str, str, int, bytes] | None = None
+        self.published: dict[str, int] = {t: 0 for t in info["topics"]}
+        self.scans_published = 0
+        self.scans_processed = 0
+        self.done = False
+        self.last_clock_ns = -1
+        self.t0_wall: float | None = None
+        self.t0_bag = info["start_ns"]
+        self.started = False
+        self.timer = self.create_timer(0.001, self.pump)
+
+    def _on_progress(self, _raw: bytes) -> None:
+        self.scans_processed += 1
+        if self.timer.is_canceled() and not self.done:
+            self.timer.reset()
+
+    def wait_for_subscribers(self) -> bool:
+        """True once the scan topic has a subscriber (DDS discovery), so nothing is lost."""
+        pub = self.publishers_.get(self.scan_topic)
+        return pub is None or pub.get_subscription_count() > 0
+
+    def pump(self, budget: int = 200) -> None:
+        """Publish what may be published now (at most `budget` messages)."""
+        if self.done:
+            self.timer.cancel()
+            return
+        if not self.started:
+            if not self.wait_for_subscribers():
+                return
+            self.started = True
+            self.t0_wall = time.monotonic()
+        for _ in range(budget):
+            if self.pending is None:
+                self.pending = next(self.messages, None)
+                if self.pending is None:
+                    self._finish()
+                    return
+            topic, _msgtype, stamp_ns, raw = self.pending
+            if topic == self.scan_topic and self.rate is None and \
+                    self.scans_published - self.scans_processed >= self.max_in_flight:
+                self.timer.cancel()  # resumed by _on_progress
+                return
+            if self.rate is not None:
+                due = self.t0_wall + (stamp_ns - self.t0_bag) / 1e9 / self.rate
+                if time.monotonic() < due:
+                    return
+            self.publishers_[topic].publish(raw)
+            self.published[topic] += 1
+            if topic == self.scan_topic:
+                self.scans_published += 1
+            if stamp_ns - self.last_clock_ns >= self.clock_period_ns or topic == self.scan_topic:
+                self.pub_clock.publish(Clock(clock=convert.ns_to_stamp(stamp_ns)))
+                self.last_clock_ns = stamp_ns
+            self.pending = None
+
+    def _finish(self) -> None:
+        self.done = True
+        self.timer.cancel()
+        self.pub_status.publish(UInt64(data=self.scans_published))
+        self.get_logger().info(f"end of bag: {sum(self.published.values())} messages, "
+                               f"{self.scans_published} scans published")
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(BagReplay, args)
+
+
+if __name__ == "__main__":
+    import sys
+    sys.exit(main())

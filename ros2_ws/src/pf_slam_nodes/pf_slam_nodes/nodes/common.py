@@ -1,0 +1,80 @@
+"""Helpers shared by the nodes: parameters mirrored from the core's config dataclasses."""
+from __future__ import annotations
+
+import dataclasses
+import sys
+from typing import Any, Callable, TypeVar
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+
+from ..core import config as cfg
+
+T = TypeVar("T")
+
+#: Dotted parameter prefix -> core config class (kiss-icp style: `grid.resolution_m`).
+CONFIG_SECTIONS: dict[str, type] = {
+    "filter": cfg.FilterConfig,
+    "motion": cfg.OdometryMotionConfig,
+    "diff_drive": cfg.DiffDriveConfig,
+    "grid": cfg.GridConfig,
+    "correlation": cfg.CorrelationConfig,
+    "resample": cfg.ResampleConfig,
+}
+
+
+def declare_config(node: Node, prefix: str) -> Any:
+    """Declare `prefix.<field>` for every field of the section's config; return the config.
+
+    Values keep their dataclass defaults unless set by parameters; ints are accepted where a
+    float is expected. Invalid values raise ValueError naming `prefix.field`.
+    """
+    cls = CONFIG_SECTIONS[prefix]
+    values: dict[str, Any] = {}
+    for f in dataclasses.fields(cls):
+        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
+        name = f"{prefix}.{f.name}"
+        p = node.declare_parameter(name, default, ParameterDescriptor(dynamic_typing=True))
+        v = p.value
+        if isinstance(default, float) and isinstance(v, int) and not isinstance(v, bool):
+            v = float(v)
+        values[f.name] = v
+    try:
+        return cls.from_dict(values)
+    except ValueError as e:
+        raise ValueError(f"node {node.get_name()}: parameter section '{prefix}': {e}") from None
+
+
+def param(node: Node, name: str, default: T) -> T:
+    """Declare a plain parameter and return its value (ints accepted for floats)."""
+    v = node.declare_parameter(name, default, ParameterDescriptor(dynamic_typing=True)).value
+    if isinstance(default, float) and isinstance(v, int) and not isinstance(v, bool):
+        v = float(v)
+    if default is not None and type(v) is not type(default):
+        raise ValueError(f"node {node.get_name()}: parameter '{name}' must be "
+                         f"{type(default).__name__}, got {v!r}")
+    return v
+
+
+def run_node(factory: Callable[..., Node], args: list[str] | None = None) -> int:
+    """`main()` of a node console script: init, spin until Ctrl-C / shutdown, clean up."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = factory()
+        ex = SingleThreadedExecutor()
+        ex.add_node(node)
+        ex.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ValueError as e:  # bad parameters: one clear line, no traceback
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return 0

@@ -1,0 +1,91 @@
+"""correlator: corrects each predicted particle set against the map with the scan.
+
+Subscribes: scan (LaserScan), particles/predicted (ParticleArray), pf_slam/grid (after each
+integration, the mapper's patch: occupancy of the cells that scan touched). Publishes: particles/updated (one per scan, carrying the
+pose estimate), pose (geometry_msgs/PoseStamped of the best particle, map frame).
+
+A corrected set (update=true) is scored against the map that holds every scan corrected before
+it: the node waits for the grid of the previous correction, so the result does not depend on
+message timing (same trajectory in one process or many, at any replay rate).
+"""
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import OccupancyGrid
+from pf_slam_interfaces.msg import ParticleArray
+from rclpy.node import Node
+from sensor_msgs.msg import LaserScan
+
+from ..core.motion import compose
+from ..core.stages import CorrectionStage, MapPatch
+from ..ros import convert, qos, topics
+from .common import declare_config, param, run_node
+
+
+class Correlator(Node):
+    def __init__(self, **kwargs) -> None:
+        super().__init__("correlator", **kwargs)
+        filter_cfg = declare_config(self, "filter")
+        self.stage = CorrectionStage(filter_cfg, declare_config(self, "grid"),
+                                     declare_config(self, "correlation"), declare_config(self, "resample"))
+        self.map_frame = param(self, "map_frame", "map")
+        self.scans: deque[LaserScan] = deque()
+        self.predicted: deque[ParticleArray] = deque()
+        self.grids_received = 0
+        self.corrections_sent = 0
+        self.pub_updated = self.create_publisher(ParticleArray, topics.PARTICLES_UPDATED, qos.pipeline())
+        self.pub_pose = self.create_publisher(PoseStamped, topics.POSE, qos.outputs())
+        self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline())
+        self.create_subscription(ParticleArray, topics.PARTICLES_PREDICTED, self._on_predicted, qos.pipeline())
+        self.create_subscription(OccupancyGrid, topics.GRID, self._on_grid, qos.pipeline(10))
+
+    def _on_scan(self, msg: LaserScan) -> None:
+        self.scans.append(msg)
+        self._drain()
+
+    def _on_predicted(self, msg: ParticleArray) -> None:
+        self.predicted.append(msg)
+        self._drain()
+
+    def _on_grid(self, msg: OccupancyGrid) -> None:
+        occ, res, origin = convert.msg_to_grid(msg)
+        self.stage.apply_patch(MapPatch(occ, res, np.asarray(origin)))
+        self.grids_received += 1
+        self._drain()
+
+    def _drain(self) -> None:
+        # scans and sets both arrive in scan order; set k belongs to the k-th scan
+        while self.predicted and self.scans:
+            pa = self.predicted[0]
+            if pa.update and self.grids_received < self.corrections_sent:
+                return  # the map of the previous correction is not here yet
+            self.predicted.popleft()
+            scan = self.scans.popleft()
+            stamp = convert.stamp_to_ns(scan.header.stamp)
+            particles, log_w = convert.msg_to_particles(pa)
+            if pa.update:
+                ranges, angles = convert.scan_arrays(scan)
+                res = self.stage.correct(particles, log_w, ranges, angles,
+                                         float(scan.range_min), float(scan.range_max))
+                particles, log_w, pose = res.particles, res.log_weights, res.pose
+                self.corrections_sent += 1
+            else:
+                pose = compose(self.stage.pose, pa.pending_delta)
+            self.pub_updated.publish(convert.particles_to_msg(
+                particles, log_w, stamp_ns=stamp, frame_id=self.map_frame,
+                scan_index=pa.scan_index, update=pa.update, odom_pose=pa.odom_pose,
+                pending_delta=pa.pending_delta, pose=pose))
+            self.pub_pose.publish(convert.pose_stamped(pose, stamp, self.map_frame))
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(Correlator, args)
+
+
+if __name__ == "__main__":
+    import sys
+    sys.exit(main())

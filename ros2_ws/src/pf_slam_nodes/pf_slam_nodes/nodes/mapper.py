@@ -1,0 +1,108 @@
+"""mapper: integrates each corrected scan into the log-odds grid and publishes the map.
+
+Subscribes: scan (LaserScan), particles/updated (ParticleArray with the pose of every scan),
+pf_slam/replay_status (number of scans in the bag, at its end).
+Publishes: pf_slam/grid (after every integration, the patch of cells the scan touched, for
+the correlator),
+map + map_metadata (latched, on a timer and once more after the last scan), path (on the timer),
+/tf (map -> odom, every scan).
+"""
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import MapMetaData, OccupancyGrid, Path
+from pf_slam_interfaces.msg import ParticleArray
+from rclpy.node import Node
+from sensor_msgs.msg import LaserScan
+from std_msgs.msg import UInt64
+from tf2_msgs.msg import TFMessage
+
+from ..core.motion import compose, relative_pose
+from ..core.stages import MappingStage
+from ..ros import convert, qos, topics
+from .common import declare_config, param, run_node
+
+
+class Mapper(Node):
+    def __init__(self, **kwargs) -> None:
+        super().__init__("mapper", **kwargs)
+        self.stage = MappingStage(declare_config(self, "filter"), declare_config(self, "grid"))
+        self.map_frame = param(self, "map_frame", "map")
+        self.odom_frame = param(self, "odom_frame", "odom")
+        period = param(self, "map_publish_period_s", 1.0)
+        self.scans: deque[LaserScan] = deque()
+        self.updates: deque[ParticleArray] = deque()
+        self.processed = 0
+        self.total: int | None = None
+        self.last_stamp = 0
+        self.path: list[PoseStamped] = []
+        self.pub_grid = self.create_publisher(OccupancyGrid, topics.GRID, qos.pipeline(10))
+        self.pub_map = self.create_publisher(OccupancyGrid, topics.MAP, qos.latched())
+        self.pub_meta = self.create_publisher(MapMetaData, topics.MAP_METADATA, qos.latched())
+        self.pub_path = self.create_publisher(Path, topics.PATH, qos.outputs(10))
+        self.pub_tf = self.create_publisher(TFMessage, topics.TF, qos.outputs())
+        self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline())
+        self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
+        self.create_subscription(UInt64, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
+        self.create_timer(period, self.publish_map)
+
+    def _on_scan(self, msg: LaserScan) -> None:
+        self.scans.append(msg)
+        self._drain()
+
+    def _on_updated(self, msg: ParticleArray) -> None:
+        self.updates.append(msg)
+        self._drain()
+
+    def _on_replay_status(self, msg: UInt64) -> None:
+        self.total = int(msg.data)
+        self._maybe_finish()
+
+    def _drain(self) -> None:
+        while self.updates and self.scans:
+            pa, scan = self.updates.popleft(), self.scans.popleft()
+            stamp = convert.stamp_to_ns(scan.header.stamp)
+            pose = np.asarray(pa.pose, dtype=np.float64)
+            if pa.update:
+                ranges, angles = convert.scan_arrays(scan)
+                patch = self.stage.integrate(pose, ranges, angles, float(scan.range_min),
+                                             float(scan.range_max))
+                self.pub_grid.publish(convert.grid_to_msg(patch.occupancy, patch.resolution,
+                                                          patch.origin, stamp, self.map_frame))
+            map_to_odom = compose(pose, relative_pose(np.asarray(pa.odom_pose), np.zeros(3)))
+            self.pub_tf.publish(TFMessage(transforms=[
+                convert.transform(self.map_frame, self.odom_frame, map_to_odom, stamp)]))
+            self.path.append(convert.pose_stamped(pose, stamp, self.map_frame))
+            self.processed += 1
+            self.last_stamp = stamp
+        self._maybe_finish()
+
+    def _maybe_finish(self) -> None:
+        if self.total is not None and self.processed == self.total:
+            self.publish_map()
+            self.total = None  # publish the final map once
+
+    def publish_map(self) -> None:
+        if not self.stage.ready:
+            return
+        occ, res, origin = self.stage.map_occupancy()
+        msg = convert.grid_to_msg(occ, res, origin, self.last_stamp, self.map_frame)
+        self.pub_map.publish(msg)
+        self.pub_meta.publish(msg.info)
+        path = Path()
+        path.header.stamp = convert.ns_to_stamp(self.last_stamp)
+        path.header.frame_id = self.map_frame
+        path.poses = self.path
+        self.pub_path.publish(path)
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(Mapper, args)
+
+
+if __name__ == "__main__":
+    import sys
+    sys.exit(main())

@@ -1,0 +1,117 @@
+"""predictor: owns the particle set between scans and moves it with the motion model.
+
+Subscribes: scan (LaserScan; only its stamp is used), odom (nav_msgs/Odometry) or
+encoders (JointState wheel angles, rad), particles/updated (the corrected set),
+pf_slam/replay_status (end of the bag). Publishes: particles/predicted (one per scan).
+
+Per scan, in order: the odometry pose at the scan stamp is looked up; if the robot moved less
+than filter.min_travel_m / filter.min_rotation_rad since the last correction, the set is passed
+on unchanged with update=false and the odometry increment in pending_delta; otherwise the
+particles are moved by the noisy odometry increment and sent with update=true, and the next
+scan waits until the corrected set comes back on particles/updated.
+"""
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+from nav_msgs.msg import Odometry
+from pf_slam_interfaces.msg import ParticleArray
+from rclpy.node import Node
+from sensor_msgs.msg import JointState, LaserScan
+from std_msgs.msg import UInt64
+
+from ..core.odometry import OdometryBuffer, WheelOdometryIntegrator
+from ..core.stages import PredictionStage
+from ..ros import convert, qos, topics
+from .common import declare_config, param, run_node
+
+
+class Predictor(Node):
+    def __init__(self, **kwargs) -> None:
+        super().__init__("predictor", **kwargs)
+        self.stage = PredictionStage(declare_config(self, "filter"), declare_config(self, "motion"))
+        self.map_frame = param(self, "map_frame", "map")
+        source = param(self, "odometry_source", "odom")
+        self.odom = OdometryBuffer(param(self, "odom_sync", "interpolate"))
+        self.scans: deque[tuple[int, int]] = deque()  # (scan_index, stamp_ns)
+        self.scan_count = 0
+        self.waiting_for: int | None = None  # scan index of the update in flight
+        self.end_of_stream = False
+        self.pub = self.create_publisher(ParticleArray, topics.PARTICLES_PREDICTED, qos.pipeline())
+        self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline())
+        self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
+        self.create_subscription(UInt64, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
+        if source == "odom":
+            self.create_subscription(Odometry, topics.ODOM, self._on_odom, qos.pipeline(10000))
+        elif source == "encoders":
+            self.wheels = WheelOdometryIntegrator(param(self, "wheels.left_diameter_m", 0.154),
+                                                  param(self, "wheels.right_diameter_m", 0.154),
+                                                  param(self, "wheels.base_m", 0.33))
+            self.create_subscription(JointState, topics.ENCODERS, self._on_encoders, qos.pipeline(10000))
+        else:
+            raise ValueError(f"parameter 'odometry_source' must be 'odom' or 'encoders', got {source!r}")
+
+    # ------------------------------------------------------------------ inputs
+    def _on_odom(self, msg: Odometry) -> None:
+        o = msg.pose.pose.orientation
+        yaw = convert.quaternion_to_yaw(o.x, o.y, o.z, o.w)
+        self.odom.add(convert.stamp_to_ns(msg.header.stamp),
+                      np.array([msg.pose.pose.position.x, msg.pose.pose.position.y, yaw]))
+        self._drain()
+
+    def _on_encoders(self, msg: JointState) -> None:
+        if len(msg.position) < 2:
+            self.get_logger().warn("encoders: JointState with fewer than 2 positions ignored",
+                                   throttle_duration_sec=5.0)
+            return
+        pose = self.wheels.step(float(msg.position[0]), float(msg.position[1]))
+        self.odom.add(convert.stamp_to_ns(msg.header.stamp), pose)
+        self._drain()
+
+    def _on_scan(self, msg: LaserScan) -> None:
+        self.scans.append((self.scan_count, convert.stamp_to_ns(msg.header.stamp)))
+        self.scan_count += 1
+        self._drain()
+
+    def _on_updated(self, msg: ParticleArray) -> None:
+        if msg.update and msg.scan_index == self.waiting_for:
+            self.stage.set_corrected(*convert.msg_to_particles(msg))
+            self.waiting_for = None
+            self._drain()
+
+    def _on_replay_status(self, msg: UInt64) -> None:
+        self.end_of_stream = True
+        self._drain()
+
+    # ------------------------------------------------------------------ the work
+    def _drain(self) -> None:
+        while self.scans and self.waiting_for is None:
+            index, stamp = self.scans[0]
+            # a scan whose exact odometry never comes must not block the ones behind it
+            final = self.end_of_stream or (
+                self.odom.sync == "exact" and len(self.scans) > 1
+                and self.odom.has_exact(self.scans[1][1], ahead=int(self.scans[1][1] == stamp)))
+            odom = self.odom.lookup(stamp, final=final)
+            if odom is None:
+                return
+            self.scans.popleft()
+            self._predict(index, stamp, odom)
+        self.odom.trim()
+
+    def _predict(self, index: int, stamp: int, odom: np.ndarray) -> None:
+        update, delta = self.stage.predict(odom)
+        self.pub.publish(convert.particles_to_msg(
+            self.stage.particles, self.stage.log_weights, stamp_ns=stamp, frame_id=self.map_frame,
+            scan_index=index, update=update, odom_pose=odom, pending_delta=None if update else delta))
+        if update:
+            self.waiting_for = index
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(Predictor, args)
+
+
+if __name__ == "__main__":
+    import sys
+    sys.exit(main())
