@@ -1,6 +1,7 @@
 """Shared fixtures. ROS fixtures import rclpy lazily so tests/unit never needs it."""
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import os
 import time
@@ -20,11 +21,12 @@ def data_dir() -> Path:
     return DATA
 
 
-@pytest.fixture
-def ros_domain() -> Iterator[int]:
+@contextlib.contextmanager
+def claim_domain() -> Iterator[int]:
     """A ROS_DOMAIN_ID no other test (in this or a parallel pytest run) holds right now.
 
-    Domains 1..100 are claimed with an exclusive file lock held for the test's duration.
+    Domains 1..100 are claimed with an exclusive file lock held while the context is open;
+    ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST are set for child processes.
     """
     lock_dir = Path(os.environ.get("TMPDIR", "/tmp")) / "pf_slam_domains"
     lock_dir.mkdir(exist_ok=True)
@@ -37,20 +39,33 @@ def ros_domain() -> Iterator[int]:
         except BlockingIOError:
             fh.close()
             continue
-        old = os.environ.get("ROS_DOMAIN_ID")
+        old = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
         os.environ["ROS_DOMAIN_ID"] = str(domain)
         os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
         try:
             yield domain
         finally:
-            if old is None:
-                os.environ.pop("ROS_DOMAIN_ID", None)
-            else:
-                os.environ["ROS_DOMAIN_ID"] = old
+            for key, v in old.items():
+                if v is None:
+                    os.environ.pop(key, None)
+                else:
+                    os.environ[key] = v
             fcntl.flock(fh, fcntl.LOCK_UN)
             fh.close()
         return
-    pytest.fail("no free ROS domain id in 1..100")
+    raise RuntimeError("no free ROS domain id in 1..100")
+
+
+@pytest.fixture
+def ros_domain() -> Iterator[int]:
+    with claim_domain() as d:
+        yield d
+
+
+@pytest.fixture(scope="module")
+def module_ros_domain() -> Iterator[int]:
+    with claim_domain() as d:
+        yield d
 
 
 @pytest.fixture

@@ -47,9 +47,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--json", action="store_true", help="print JSON")
 
     si = sub.add_parser("simulate-indoor", help="write the seeded indoor sample bag with ground truth")
-    si.add_argument("--out", required=True)
-    si.add_argument("--seed", type=int, default=0)
-    si.add_argument("--duration", type=float, default=60.0)
+    from .sim.indoor import add_arguments
+    add_arguments(si)
 
     b = sub.add_parser("bench", help="benchmarks (message layout; more in `make bench`)")
     b.add_argument("what", choices=["messages"], nargs="?", default="messages")
@@ -88,10 +87,8 @@ def _dispatch(args: argparse.Namespace) -> int:
         print(json.dumps(res, indent=2) if args.json else format_evaluation(res))
         return 0
     if args.command == "simulate-indoor":
-        from .sim.indoor import simulate_indoor
-        res = simulate_indoor(args.out, seed=args.seed, duration_s=args.duration)
-        print(res)
-        return 0
+        from .sim.indoor import run_args
+        return run_args(args)
     if args.command == "bench":
         from .bench import messages
         print(messages.format_table(messages.run()))

@@ -110,7 +110,13 @@ def detect_inputs(bag: str, info: dict) -> dict[str, dict[str, Any]]:
         if len(scan_stamps) >= 200:
             break
     exact = bool(scan_stamps) and sum(s in odom_stamps for s in scan_stamps) >= 0.9 * len(scan_stamps)
-    return {"predictor": {"odometry_source": source, "odom_sync": "exact" if exact else "interpolate"}}
+    predictor: dict[str, Any] = {"odometry_source": source, "odom_sync": "exact" if exact else "interpolate"}
+    custom = info.get("custom_data", {})
+    if source == "encoders" and "pf_slam.wheel_radius_m" in custom:  # written by `convert mines`
+        d = 2.0 * float(custom["pf_slam.wheel_radius_m"])
+        predictor.update({"wheels.left_diameter_m": d, "wheels.right_diameter_m": d,
+                          "wheels.base_m": 2.0 * float(custom["pf_slam.half_axle_m"])})
+    return {"predictor": predictor}
 
 
 # ---------------------------------------------------------------------------- the run
@@ -168,15 +174,17 @@ class _Recorder:
 
     def print_progress(self, final: bool = False) -> None:
         now = time.monotonic()
-        if not self.progress or (not final and now - self._last_print < 0.5):
+        tty = sys.stderr.isatty()
+        if not self.progress or (not final and now - self._last_print < (0.5 if tty else 10.0)):
             return
         self._last_print = now
         k, n = len(self.poses), max(self.scans_total, 1)
         wall = now - self.t0
         rtf = (self.bag_duration_s * k / n) / wall if wall > 0 else 0.0
         eta = wall * (n - k) / k if k else float("nan")
-        sys.stderr.write(f"\r[pf-slam] scans {k}/{n}  RTF {rtf:5.1f}x  ETA {eta:5.0f} s ")
-        if final:
+        line = f"[pf-slam] scans {k}/{n}  RTF {rtf:5.1f}x  ETA {eta:5.0f} s"
+        sys.stderr.write(f"\r{line} " if tty else line + "\n")
+        if final and tty:
             sys.stderr.write("\n")
         sys.stderr.flush()
 
@@ -207,7 +215,8 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     layers = [detect_inputs(bag, info)]
     if params_file:
         layers.append(load_params(params_file))
-    layers.append({"bag_replay": {"bag": str(bag), "rate": str(rate)}})
+    layers.append({"bag_replay": {"bag": str(bag), "rate": str(rate), "expected_observers": 1,
+                                  "startup_settle_s": 0.0 if processes == "single" else 1.0}})
     if overrides:
         layers.append(overrides)
     per_node = {n: node_params(layers, n) for n in NODE_NAMES}

@@ -23,25 +23,12 @@ import numpy as np
 from .config import CorrelationConfig, FilterConfig, GridConfig, OdometryMotionConfig, ResampleConfig
 from .correlation import GridLikelihoodField, correlate
 from .filter import n_eff, resample, update_log_weights
-from .grid import LogOddsGrid
+from .grid import LogOddsGrid, grid_geometry
 from .motion import relative_pose, sample_odometry_motion
 from .scan import scan_to_points, transform_points
 
 MOTION_STREAM = 1
 RESAMPLE_STREAM = 2
-
-
-def grid_geometry(cfg: GridConfig, center_xy: np.ndarray) -> tuple[int, int, np.ndarray]:
-    """(height, width, origin_xy) of the grid that :class:`LogOddsGrid` builds for ``center_xy``."""
-    res = float(cfg.resolution_m)
-    width = int(math.ceil(cfg.size_x_m / res - 1e-9))
-    height = int(math.ceil(cfg.size_y_m / res - 1e-9))
-    if cfg.origin_x_m is not None:
-        origin = np.array([cfg.origin_x_m, cfg.origin_y_m], dtype=np.float64)
-    else:
-        c = np.asarray(center_xy, dtype=np.float64).reshape(-1)[:2]
-        origin = c - 0.5 * res * np.array([width, height], dtype=np.float64)
-    return height, width, origin
 
 
 @dataclasses.dataclass

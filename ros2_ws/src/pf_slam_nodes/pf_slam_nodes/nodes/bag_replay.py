@@ -4,7 +4,7 @@ Messages are published as recorded (serialized CDR, never deserialized here), in
 order. Rates: `rate:=max` paces on the pipeline: at most `max_in_flight` scans are published
 and not yet processed (counted on particles/updated), so nothing is dropped and the run is
 reproducible; `rate:=1` is real time, `rate:=N` N times real time. At the end of the bag the
-number of scans published goes out on pf_slam/replay_status (latched).
+number of messages published per topic goes out on pf_slam/replay_status (latched).
 """
 from __future__ import annotations
 
@@ -12,11 +12,10 @@ import importlib
 import time
 from typing import Any
 
-from pf_slam_interfaces.msg import ParticleArray
+from pf_slam_interfaces.msg import ParticleArray, ReplayStatus
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rosgraph_msgs.msg import Clock
-from std_msgs.msg import UInt64
 
 from ..io.bag import bag_info, read_bag
 from ..ros import convert, qos, topics
@@ -57,6 +56,15 @@ class BagReplay(Node):
         self.max_in_flight = param(self, "max_in_flight", 2)
         self.scan_topic = param(self, "scan_topic", "/scan")
         self.clock_period_ns = int(param(self, "clock_period_s", 0.01) * 1e9)
+        self.startup_settle_s = param(self, "startup_settle_s", 0.5)
+        self.ready_since: float | None = None
+        # predictor + correlator + mapper on scans; predictor + mapper + this node on the corrected
+        # sets, plus observers that must see every scan (the recorder of `pf-slam run`)
+        observers = param(self, "expected_observers", 0)
+        self.required_subscribers = {self.scan_topic: 3,
+                                     self.resolve_topic_name(topics.PARTICLES_UPDATED): 3 + observers,
+                                     self.resolve_topic_name(topics.PARTICLES_PREDICTED): 1,
+                                     self.resolve_topic_name(topics.GRID): 1}
         info = bag_info(self.bag)
         self.info = info
         self.scans_in_bag = info["topics"].get(self.scan_topic, ("", 0))[1]
@@ -65,7 +73,7 @@ class BagReplay(Node):
             profile = qos.latched() if topic in LATCHED_TOPICS else qos.pipeline(10000)
             self.publishers_[topic] = self.create_publisher(message_class(msgtype), topic, profile)
         self.pub_clock = self.create_publisher(Clock, topics.CLOCK, qos.outputs(10))
-        self.pub_status = self.create_publisher(UInt64, topics.REPLAY_STATUS, qos.latched())
+        self.pub_status = self.create_publisher(ReplayStatus, topics.REPLAY_STATUS, qos.latched())
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_progress,
                                  qos.pipeline(), raw=True)
         self.messages = read_bag(self.bag)
@@ -85,10 +93,18 @@ class BagReplay(Node):
         if self.timer.is_canceled() and not self.done:
             self.timer.reset()
 
-    def wait_for_subscribers(self) -> bool:
-        """True once the scan topic has a subscriber (DDS discovery), so nothing is lost."""
-        pub = self.publishers_.get(self.scan_topic)
-        return pub is None or pub.get_subscription_count() > 0
+    def graph_ready(self) -> bool:
+        """True once the pipeline's subscribers are discovered (+ a settle time), so nothing is lost.
+
+        Reliable, volatile topics lose what is published before a subscriber matches: wait for
+        the predictor, correlator and mapper on the scan topic and for the pipeline topics.
+        """
+        if self.ready_since is None:
+            for topic, n in self.required_subscribers.items():
+                if self.count_subscribers(topic) < n:
+                    return False
+            self.ready_since = time.monotonic()
+        return time.monotonic() - self.ready_since >= self.startup_settle_s
 
     def pump(self, budget: int = 200) -> None:
         """Publish what may be published now (at most `budget` messages)."""
@@ -96,7 +112,7 @@ class BagReplay(Node):
             self.timer.cancel()
             return
         if not self.started:
-            if not self.wait_for_subscribers():
+            if not self.graph_ready():
                 return
             self.started = True
             self.t0_wall = time.monotonic()
@@ -127,7 +143,9 @@ class BagReplay(Node):
     def _finish(self) -> None:
         self.done = True
         self.timer.cancel()
-        self.pub_status.publish(UInt64(data=self.scans_published))
+        topics_ = sorted(self.published)
+        self.pub_status.publish(ReplayStatus(done=True, topics=topics_,
+                                             counts=[self.published[t] for t in topics_]))
         self.get_logger().info(f"end of bag: {sum(self.published.values())} messages, "
                                f"{self.scans_published} scans published")
 

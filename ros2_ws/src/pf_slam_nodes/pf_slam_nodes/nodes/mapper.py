@@ -1,7 +1,7 @@
 """mapper: integrates each corrected scan into the log-odds grid and publishes the map.
 
 Subscribes: scan (LaserScan), particles/updated (ParticleArray with the pose of every scan),
-pf_slam/replay_status (number of scans in the bag, at its end).
+pf_slam/replay_status (messages per topic, at the end of the bag).
 Publishes: pf_slam/grid (after every integration, the patch of cells the scan touched, for
 the correlator),
 map + map_metadata (latched, on a timer and once more after the last scan), path (on the timer),
@@ -14,10 +14,9 @@ from collections import deque
 import numpy as np
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import MapMetaData, OccupancyGrid, Path
-from pf_slam_interfaces.msg import ParticleArray
+from pf_slam_interfaces.msg import ParticleArray, ReplayStatus
 from rclpy.node import Node
 from sensor_msgs.msg import LaserScan
-from std_msgs.msg import UInt64
 from tf2_msgs.msg import TFMessage
 
 from ..core.motion import compose, relative_pose
@@ -33,6 +32,7 @@ class Mapper(Node):
         self.map_frame = param(self, "map_frame", "map")
         self.odom_frame = param(self, "odom_frame", "odom")
         period = param(self, "map_publish_period_s", 1.0)
+        self.scan_topic = self.resolve_topic_name(topics.SCAN)
         self.scans: deque[LaserScan] = deque()
         self.updates: deque[ParticleArray] = deque()
         self.processed = 0
@@ -46,7 +46,7 @@ class Mapper(Node):
         self.pub_tf = self.create_publisher(TFMessage, topics.TF, qos.outputs())
         self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline())
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
-        self.create_subscription(UInt64, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
+        self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
         self.create_timer(period, self.publish_map)
 
     def _on_scan(self, msg: LaserScan) -> None:
@@ -57,8 +57,8 @@ class Mapper(Node):
         self.updates.append(msg)
         self._drain()
 
-    def _on_replay_status(self, msg: UInt64) -> None:
-        self.total = int(msg.data)
+    def _on_replay_status(self, msg: ReplayStatus) -> None:
+        self.total = int(dict(zip(msg.topics, msg.counts)).get(self.scan_topic, 0))
         self._maybe_finish()
 
     def _drain(self) -> None:

@@ -16,10 +16,9 @@ from collections import deque
 
 import numpy as np
 from nav_msgs.msg import Odometry
-from pf_slam_interfaces.msg import ParticleArray
+from pf_slam_interfaces.msg import ParticleArray, ReplayStatus
 from rclpy.node import Node
 from sensor_msgs.msg import JointState, LaserScan
-from std_msgs.msg import UInt64
 
 from ..core.odometry import OdometryBuffer, WheelOdometryIntegrator
 from ..core.stages import PredictionStage
@@ -33,15 +32,19 @@ class Predictor(Node):
         self.stage = PredictionStage(declare_config(self, "filter"), declare_config(self, "motion"))
         self.map_frame = param(self, "map_frame", "map")
         source = param(self, "odometry_source", "odom")
+        if source not in ("odom", "encoders"):
+            raise ValueError(f"parameter 'odometry_source' must be 'odom' or 'encoders', got {source!r}")
         self.odom = OdometryBuffer(param(self, "odom_sync", "interpolate"))
         self.scans: deque[tuple[int, int]] = deque()  # (scan_index, stamp_ns)
         self.scan_count = 0
         self.waiting_for: int | None = None  # scan index of the update in flight
-        self.end_of_stream = False
+        self.odom_received = 0
+        self.odom_expected: int | None = None  # from the replay's final counts
+        self.odom_topic = self.resolve_topic_name(topics.ODOM if source == "odom" else topics.ENCODERS)
         self.pub = self.create_publisher(ParticleArray, topics.PARTICLES_PREDICTED, qos.pipeline())
         self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline())
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
-        self.create_subscription(UInt64, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
+        self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
         if source == "odom":
             self.create_subscription(Odometry, topics.ODOM, self._on_odom, qos.pipeline(10000))
         elif source == "encoders":
@@ -49,8 +52,6 @@ class Predictor(Node):
                                                   param(self, "wheels.right_diameter_m", 0.154),
                                                   param(self, "wheels.base_m", 0.33))
             self.create_subscription(JointState, topics.ENCODERS, self._on_encoders, qos.pipeline(10000))
-        else:
-            raise ValueError(f"parameter 'odometry_source' must be 'odom' or 'encoders', got {source!r}")
 
     # ------------------------------------------------------------------ inputs
     def _on_odom(self, msg: Odometry) -> None:
@@ -58,6 +59,7 @@ class Predictor(Node):
         yaw = convert.quaternion_to_yaw(o.x, o.y, o.z, o.w)
         self.odom.add(convert.stamp_to_ns(msg.header.stamp),
                       np.array([msg.pose.pose.position.x, msg.pose.pose.position.y, yaw]))
+        self.odom_received += 1
         self._drain()
 
     def _on_encoders(self, msg: JointState) -> None:
@@ -67,6 +69,7 @@ class Predictor(Node):
             return
         pose = self.wheels.step(float(msg.position[0]), float(msg.position[1]))
         self.odom.add(convert.stamp_to_ns(msg.header.stamp), pose)
+        self.odom_received += 1
         self._drain()
 
     def _on_scan(self, msg: LaserScan) -> None:
@@ -80,8 +83,9 @@ class Predictor(Node):
             self.waiting_for = None
             self._drain()
 
-    def _on_replay_status(self, msg: UInt64) -> None:
-        self.end_of_stream = True
+    def _on_replay_status(self, msg: ReplayStatus) -> None:
+        counts = dict(zip(msg.topics, msg.counts))
+        self.odom_expected = int(counts.get(self.odom_topic, 0))
         self._drain()
 
     # ------------------------------------------------------------------ the work
@@ -89,7 +93,8 @@ class Predictor(Node):
         while self.scans and self.waiting_for is None:
             index, stamp = self.scans[0]
             # a scan whose exact odometry never comes must not block the ones behind it
-            final = self.end_of_stream or (
+            # end of stream: every odometry message of the bag is here, none will follow
+            final = (self.odom_expected is not None and self.odom_received >= self.odom_expected) or (
                 self.odom.sync == "exact" and len(self.scans) > 1
                 and self.odom.has_exact(self.scans[1][1], ahead=int(self.scans[1][1] == stamp)))
             odom = self.odom.lookup(stamp, final=final)

@@ -1,0 +1,358 @@
+"""Configuration dataclasses of the pf_slam algorithm core.
+
+One frozen dataclass per stage. Every config validates itself in ``__post_init__`` and raises
+``ValueError`` naming the parameter and the bad value. ``from_dict`` builds a config from a plain
+mapping (e.g. ROS parameters) and rejects unknown keys.
+
+Defaults are tuned for the CARMEN indoor logs (Intel Research Lab, MIT CSAIL): 0.05 m grid,
+180/361-beam SICK scanners, odometry increments between scans.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Mapping, Optional, TypeVar
+
+import numpy as np
+
+_T = TypeVar("_T", bound="_ConfigBase")
+
+
+def _check_finite(name: str, value: Any) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"{name} must be a finite number, got {value!r}")
+
+
+def _check_nonneg(name: str, value: Any) -> None:
+    _check_finite(name, value)
+    if value < 0:
+        raise ValueError(f"{name} must be >= 0, got {value!r}")
+
+
+def _check_pos(name: str, value: Any) -> None:
+    _check_finite(name, value)
+    if value <= 0:
+        raise ValueError(f"{name} must be > 0, got {value!r}")
+
+
+def _check_int(name: str, value: Any, minimum: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError(f"{name} must be an int, got {value!r}")
+    if value < minimum:
+        raise ValueError(f"{name} must be >= {minimum}, got {value!r}")
+
+
+class _ConfigBase:
+    """Mixin: ``from_dict`` with unknown-key rejection."""
+
+    @classmethod
+    def from_dict(cls: type[_T], d: Mapping[str, Any]) -> _T:
+        """Build the config from a mapping; unknown keys raise ``ValueError`` naming them.
+
+        Parameters
+        ----------
+        d : Mapping[str, Any]
+            Parameter name -> value. Missing keys keep their defaults.
+
+        Returns
+        -------
+        config
+            A validated instance.
+        """
+        names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise ValueError(f"{cls.__name__}: unknown parameter(s) {unknown}; known: {sorted(names)}")
+        return cls(**dict(d))  # type: ignore[call-arg]
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return the parameters as a plain dict (inverse of :meth:`from_dict`)."""
+        return dataclasses.asdict(self)  # type: ignore[call-overload]
+
+
+@dataclasses.dataclass(frozen=True)
+class OdometryMotionConfig(_ConfigBase):
+    """Gaussian noise on an odometry increment ``delta = (dx, dy, dtheta)`` (robot frame).
+
+    The increment is perturbed component-wise in the frame of the previous pose, then composed:
+    ``dx' = dx + N(0, s_xy)``, ``dy' = dy + N(0, s_xy)``, ``dtheta' = dtheta + N(0, s_th)`` with
+    standard deviations (GMapping srr/srt/str/stt style, linear in the motion)
+
+    ``s_xy = sigma_xy_per_m * |t| + sigma_xy_per_rad * |dtheta| + sigma_xy_min_m``
+
+    ``s_th = sigma_theta_per_m * |t| + sigma_theta_per_rad * |dtheta| + sigma_theta_min_rad``
+
+    where ``t = hypot(dx, dy)``. All zeros gives the exact composition.
+
+    Attributes
+    ----------
+    sigma_xy_per_m : float
+        Translation noise std per metre travelled (m/m).
+    sigma_xy_per_rad : float
+        Translation noise std per radian turned (m/rad).
+    sigma_theta_per_m : float
+        Rotation noise std per metre travelled (rad/m).
+    sigma_theta_per_rad : float
+        Rotation noise std per radian turned (rad/rad).
+    sigma_xy_min_m : float
+        Constant translation noise std added to every prediction (m).
+    sigma_theta_min_rad : float
+        Constant rotation noise std added to every prediction (rad).
+    """
+
+    sigma_xy_per_m: float = 0.05
+    sigma_xy_per_rad: float = 0.02
+    sigma_theta_per_m: float = 0.02
+    sigma_theta_per_rad: float = 0.05
+    sigma_xy_min_m: float = 0.005
+    sigma_theta_min_rad: float = 0.002
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            _check_nonneg(f.name, getattr(self, f.name))
+
+
+@dataclasses.dataclass(frozen=True)
+class DiffDriveConfig(_ConfigBase):
+    """Gaussian noise of the differential-drive (wheel encoder [+ gyro]) motion model.
+
+    Per step, ``distance' = distance + N(0, sigma_v * |distance| + sigma_v_min_m)`` and
+    ``dyaw' = dyaw + N(0, sigma_omega * |dyaw| + sigma_omega_per_m * |distance| + sigma_omega_min_rad)``.
+
+    Attributes
+    ----------
+    sigma_v : float
+        Distance noise std per metre travelled (m/m, dimensionless).
+    sigma_omega : float
+        Yaw noise std per radian turned (rad/rad).
+    sigma_omega_per_m : float
+        Yaw noise std per metre travelled (rad/m).
+    sigma_v_min_m : float
+        Constant distance noise std per step (m).
+    sigma_omega_min_rad : float
+        Constant yaw noise std per step (rad).
+    """
+
+    sigma_v: float = 0.05
+    sigma_omega: float = 0.05
+    sigma_omega_per_m: float = 0.02
+    sigma_v_min_m: float = 0.0
+    sigma_omega_min_rad: float = 0.0
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            _check_nonneg(f.name, getattr(self, f.name))
+
+
+@dataclasses.dataclass(frozen=True)
+class GridConfig(_ConfigBase):
+    """Log-odds occupancy grid.
+
+    Attributes
+    ----------
+    resolution_m : float
+        Cell edge length (m).
+    size_x_m, size_y_m : float
+        Map extent along x (columns) and y (rows) (m).
+    origin_x_m, origin_y_m : float or None
+        World position of the corner of cell (0, 0) (ROS ``map.info.origin``). ``None`` (both)
+        centres the grid on the first pose.
+    log_odds_hit : float
+        Increment for the endpoint cell of a beam (default ``log 4``).
+    log_odds_miss : float
+        Increment (negative) for cells a beam passes through (default ``-log 4``).
+    clip_min, clip_max : float
+        Log-odds clamp.
+    range_max_usable_m : float
+        Beams longer than this (or without return) mark free space up to this range, no hit.
+    """
+
+    resolution_m: float = 0.05
+    size_x_m: float = 100.0
+    size_y_m: float = 100.0
+    origin_x_m: Optional[float] = None
+    origin_y_m: Optional[float] = None
+    log_odds_hit: float = 0.85
+    log_odds_miss: float = -0.4
+    clip_min: float = -5.0
+    clip_max: float = 5.0
+    range_max_usable_m: float = 20.0
+
+    def __post_init__(self) -> None:
+        _check_pos("resolution_m", self.resolution_m)
+        _check_pos("size_x_m", self.size_x_m)
+        _check_pos("size_y_m", self.size_y_m)
+        if (self.origin_x_m is None) != (self.origin_y_m is None):
+            raise ValueError(
+                f"origin_x_m and origin_y_m must both be set or both None, got "
+                f"origin_x_m={self.origin_x_m!r}, origin_y_m={self.origin_y_m!r}"
+            )
+        if self.origin_x_m is not None:
+            _check_finite("origin_x_m", self.origin_x_m)
+            _check_finite("origin_y_m", self.origin_y_m)
+        _check_finite("log_odds_hit", self.log_odds_hit)
+        if self.log_odds_hit <= 0:
+            raise ValueError(f"log_odds_hit must be > 0, got {self.log_odds_hit!r}")
+        _check_finite("log_odds_miss", self.log_odds_miss)
+        if self.log_odds_miss >= 0:
+            raise ValueError(f"log_odds_miss must be < 0, got {self.log_odds_miss!r}")
+        _check_finite("clip_min", self.clip_min)
+        _check_finite("clip_max", self.clip_max)
+        if self.clip_min >= 0:
+            raise ValueError(f"clip_min must be < 0, got {self.clip_min!r}")
+        if self.clip_max <= 0:
+            raise ValueError(f"clip_max must be > 0, got {self.clip_max!r}")
+        _check_pos("range_max_usable_m", self.range_max_usable_m)
+        if self.size_x_m / self.resolution_m > 50000 or self.size_y_m / self.resolution_m > 50000:
+            raise ValueError(
+                f"size_x_m/size_y_m too large for resolution_m={self.resolution_m!r}: "
+                f"size_x_m={self.size_x_m!r}, size_y_m={self.size_y_m!r} (max 50000 cells per axis)"
+            )
+
+
+@dataclasses.dataclass(frozen=True)
+class CorrelationConfig(_ConfigBase):
+    """Scan-to-map correlation (per-particle window search + Gauss-Newton refinement).
+
+    The search evaluates every particle at ``(2*round(search_x_m/step_xy_m)+1) *
+    (2*round(search_y_m/step_xy_m)+1) * (2*round(search_yaw_rad/step_yaw_rad)+1)`` candidate poses
+    with nearest-cell lookups in the likelihood field, keeps the best, then refines it with
+    ``refine_iterations`` Gauss-Newton steps on the bilinearly interpolated distance field.
+
+    Attributes
+    ----------
+    search_x_m, search_y_m : float
+        Half-widths of the translation window (m). 0 disables the search along that axis.
+    search_yaw_rad : float
+        Half-width of the rotation window (rad). 0 disables it.
+    step_xy_m : float
+        Translation step (m); rounded to a whole number of grid cells (at least 1) at search time.
+    step_yaw_rad : float
+        Rotation step (rad).
+    beam_stride : int
+        Use every ``beam_stride``-th beam for the window search.
+    refine_beam_stride : int
+        Use every ``refine_beam_stride``-th beam for the refinement and the final score.
+    range_max_m : float
+        Beams longer than this are not used for correlation (m).
+    sigma_m : float
+        Std of the likelihood field: ``log p = -d^2 / (2 sigma^2)``, ``d`` = distance to the
+        nearest occupied cell (m).
+    max_distance_m : float
+        Distances are clamped at this value (robustness to unmatched beams) (m).
+    occupied_threshold : int
+        Occupancy value (0..100) at or above which a cell counts as an obstacle.
+    temperature : float
+        Softmax temperature: ``log_w += log_score / temperature``.
+    refine_iterations : int
+        Gauss-Newton iterations after the window search (0 disables the refinement).
+    refine_residual : str
+        ``'likelihood'``: residual ``1 - exp(-d^2 / (2 sigma^2))`` (smooth, default);
+        ``'distance'``: residual ``d``.
+    """
+
+    search_x_m: float = 0.2
+    search_y_m: float = 0.2
+    search_yaw_rad: float = 0.2
+    step_xy_m: float = 0.1
+    step_yaw_rad: float = 0.025
+    beam_stride: int = 4
+    refine_beam_stride: int = 1
+    range_max_m: float = 20.0
+    sigma_m: float = 0.05
+    max_distance_m: float = 0.3
+    occupied_threshold: int = 65
+    temperature: float = 20.0
+    refine_iterations: int = 30
+    refine_residual: str = "likelihood"
+
+    def __post_init__(self) -> None:
+        _check_nonneg("search_x_m", self.search_x_m)
+        _check_nonneg("search_y_m", self.search_y_m)
+        _check_nonneg("search_yaw_rad", self.search_yaw_rad)
+        _check_pos("step_xy_m", self.step_xy_m)
+        _check_pos("step_yaw_rad", self.step_yaw_rad)
+        _check_int("beam_stride", self.beam_stride, 1)
+        _check_int("refine_beam_stride", self.refine_beam_stride, 1)
+        _check_pos("range_max_m", self.range_max_m)
+        _check_pos("sigma_m", self.sigma_m)
+        _check_pos("max_distance_m", self.max_distance_m)
+        _check_int("occupied_threshold", self.occupied_threshold, 1)
+        if self.occupied_threshold > 100:
+            raise ValueError(f"occupied_threshold must be <= 100, got {self.occupied_threshold!r}")
+        _check_pos("temperature", self.temperature)
+        _check_int("refine_iterations", self.refine_iterations, 0)
+        if self.refine_residual not in ("likelihood", "distance"):
+            raise ValueError(f"refine_residual must be 'likelihood' or 'distance', got {self.refine_residual!r}")
+        for name, value, step in (
+            ("search_x_m", self.search_x_m, self.step_xy_m),
+            ("search_y_m", self.search_y_m, self.step_xy_m),
+            ("search_yaw_rad", self.search_yaw_rad, self.step_yaw_rad),
+        ):
+            if value / step > 200:
+                raise ValueError(f"{name}={value!r} is more than 200 steps of {step!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class ResampleConfig(_ConfigBase):
+    """Resampling policy.
+
+    Attributes
+    ----------
+    neff_threshold : float
+        Resample when ``N_eff < neff_threshold * N``; in (0, 1]. 1 resamples at every update.
+    method : str
+        ``'stratified'`` or ``'systematic'``.
+    """
+
+    neff_threshold: float = 0.5
+    method: str = "stratified"
+
+    def __post_init__(self) -> None:
+        _check_finite("neff_threshold", self.neff_threshold)
+        if not 0.0 < self.neff_threshold <= 1.0:
+            raise ValueError(f"neff_threshold must be in (0, 1], got {self.neff_threshold!r}")
+        if self.method not in ("stratified", "systematic"):
+            raise ValueError(f"method must be 'stratified' or 'systematic', got {self.method!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class FilterConfig(_ConfigBase):
+    """Particle filter loop.
+
+    Attributes
+    ----------
+    num_particles : int
+        Number of particles N.
+    seed : int
+        Seed of the filter's ``np.random.Generator`` (determinism).
+    min_travel_m : float
+        Run a correction only after the odometry moved at least this far since the last one (m)...
+    min_rotation_rad : float
+        ... or turned at least this much (rad).
+    sensor_offset_x_m, sensor_offset_y_m, sensor_offset_yaw_rad : float
+        Pose of the laser in the robot (base) frame.
+    """
+
+    num_particles: int = 30
+    seed: int = 0
+    min_travel_m: float = 0.1
+    min_rotation_rad: float = 0.05
+    sensor_offset_x_m: float = 0.0
+    sensor_offset_y_m: float = 0.0
+    sensor_offset_yaw_rad: float = 0.0
+
+    def __post_init__(self) -> None:
+        _check_int("num_particles", self.num_particles, 1)
+        _check_int("seed", self.seed, 0)
+        _check_nonneg("min_travel_m", self.min_travel_m)
+        _check_nonneg("min_rotation_rad", self.min_rotation_rad)
+        _check_finite("sensor_offset_x_m", self.sensor_offset_x_m)
+        _check_finite("sensor_offset_y_m", self.sensor_offset_y_m)
+        _check_finite("sensor_offset_yaw_rad", self.sensor_offset_yaw_rad)
+
+    @property
+    def sensor_offset(self) -> np.ndarray:
+        """Laser pose in the base frame, ``(3,)`` float64 ``[x, y, yaw]``."""
+        return np.array([self.sensor_offset_x_m, self.sensor_offset_y_m, self.sensor_offset_yaw_rad])

@@ -1,0 +1,52 @@
+"""Pairing odometry with scans (core/odometry.py), including the Intel log's bad timestamps."""
+import numpy as np
+import pytest
+
+from pf_slam_nodes.core.odometry import OdometryBuffer, WheelOdometryIntegrator
+
+
+def test_exact_pairs_repeated_and_backward_stamps_in_order():
+    buf = OdometryBuffer("exact")
+    stamps = [100, 200, 200, 150, 300]  # a repeat and a step back, as in intel_2726
+    for k, t in enumerate(stamps):
+        buf.add(t, np.array([k, 0.0, 0.0]))
+    got = [buf.lookup(t)[0] for t in stamps]
+    assert got == [0, 1, 2, 3, 4]
+    assert buf.backward_steps == 1
+
+
+def test_exact_waits_then_falls_back_when_final():
+    buf = OdometryBuffer("exact")
+    buf.add(100, np.array([1.0, 0, 0]))
+    assert buf.lookup(150) is None
+    np.testing.assert_array_equal(buf.lookup(150, final=True), [1.0, 0, 0])
+    assert buf.missing == 1
+
+
+def test_interpolate_between_bracketing_poses_and_wraps_yaw():
+    buf = OdometryBuffer("interpolate")
+    buf.add(0, np.array([0.0, 0.0, np.pi - 0.1]))
+    assert buf.lookup(5) is None  # the bracket's upper end has not arrived
+    buf.add(10, np.array([1.0, 2.0, -np.pi + 0.1]))
+    p = buf.lookup(5)
+    np.testing.assert_allclose(p[:2], [0.5, 1.0])
+    assert abs(abs(p[2]) - np.pi) < 1e-9  # through +-pi, not through 0
+
+
+def test_bad_sync_name():
+    with pytest.raises(ValueError, match="odom_sync"):
+        OdometryBuffer("nearest")
+
+
+def test_wheel_integrator_straight_and_turn():
+    w = WheelOdometryIntegrator(0.2, 0.2, 0.5)
+    w.step(0.0, 0.0)
+    p = w.step(10.0, 10.0)  # 10 rad * 0.1 m radius = 1 m straight
+    np.testing.assert_allclose(p, [1.0, 0.0, 0.0], atol=1e-12)
+    p = w.step(10.0, 10.0 + 2.5)  # right wheel 0.25 m more: dyaw = 0.25 / 0.5
+    assert p[2] == pytest.approx(0.5)
+    w.add_gyro(0.1)
+    p2 = w.step(10.0, 12.5)  # gyro yaw replaces the wheels' yaw
+    assert p2[2] == pytest.approx(0.6)
+    with pytest.raises(ValueError, match="wheel_base_m"):
+        WheelOdometryIntegrator(0.2, 0.2, 0.0)
