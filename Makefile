@@ -4,6 +4,7 @@ SHELL := /bin/bash
 VENV ?= $(CURDIR)/.venv
 BIN := $(VENV)/bin
 SAMPLE_BAG ?= bags/sample_indoor
+PARAMS ?= ros2_ws/src/pf_slam_nodes/config/sim_indoor.yaml
 OUT ?= runs/sample
 PYTEST_ARGS ?=
 
@@ -12,8 +13,9 @@ PYTEST_ARGS ?=
 setup:
 	@bash scripts/setup.sh
 
-run: setup
-	$(BIN)/pf-slam run $(SAMPLE_BAG) --out $(OUT) --rate max
+run: setup   ## the main job: the sample bag through the graph, then its error against ground truth
+	$(BIN)/pf-slam run $(SAMPLE_BAG) --out $(OUT) --params $(PARAMS) --rate max
+	$(BIN)/pf-slam eval --est $(OUT)/trajectory.tum --gt bags/ground_truth.tum
 
 test: setup
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
