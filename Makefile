@@ -20,8 +20,9 @@ run: setup   ## the main job: the sample bag through the graph, then its error a
 test: setup
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
 
-bench: setup
-	$(BIN)/pf-slam bench --out docs/bench
+bench: setup   ## prints tables; the CARMEN one is also written to runs/bench/carmen.md
+	$(BIN)/pf-slam bench messages
+	$(BIN)/pf-slam bench carmen --data ../shared/data --out runs/bench --seeds 0 1 2
 
 lock: setup   ## re-pin requirements/constraints.txt from the current venv
 	@{ echo "# Lock file for the pip-only install: exact versions measured to work together (ROS 2 Jazzy wheels,"; \

@@ -50,8 +50,13 @@ def build_parser() -> argparse.ArgumentParser:
     from .sim.indoor import add_arguments
     add_arguments(si)
 
-    b = sub.add_parser("bench", help="benchmarks (message layout; more in `make bench`)")
-    b.add_argument("what", choices=["messages"], nargs="?", default="messages")
+    b = sub.add_parser("bench", help="benchmarks: ParticleArray layout; the graph on the CARMEN logs")
+    b.add_argument("what", choices=["messages", "carmen"])
+    b.add_argument("--data", default="../shared/data", help="datasets folder (carmen/ inside)")
+    b.add_argument("--out", default="runs/bench", help="where bags, runs and tables go")
+    b.add_argument("--datasets", nargs="*", help="subset of intel_910 intel_2726 mit-csail")
+    b.add_argument("--seeds", type=int, nargs="*", default=[0])
+    b.add_argument("--processes", choices=["single", "multi"], default="single")
     return p
 
 
@@ -90,8 +95,12 @@ def _dispatch(args: argparse.Namespace) -> int:
         from .sim.indoor import run_args
         return run_args(args)
     if args.command == "bench":
-        from .bench import messages
-        print(messages.format_table(messages.run()))
+        if args.what == "messages":
+            from .bench import messages
+            print(messages.format_table(messages.run()))
+        else:
+            from .bench import carmen
+            print(carmen.main(args.data, args.out, args.datasets, tuple(args.seeds), args.processes))
         return 0
     raise AssertionError(args.command)
 
