@@ -189,6 +189,18 @@ class _Recorder:
         sys.stderr.flush()
 
 
+def make_executor(kind: str, context):
+    """'events': rclpy's C++ EventsExecutor (rclpy.experimental, much less Python per callback);
+    'single': the classic SingleThreadedExecutor. The graph's result does not depend on it."""
+    from rclpy.executors import SingleThreadedExecutor
+    if kind == "events":
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor(context=context)
+    if kind == "single":
+        return SingleThreadedExecutor(context=context)
+    raise RunError(f"executor must be 'events' or 'single', got {kind!r}")
+
+
 def _make_node(name: str, context, overrides: dict[str, Any]):
     from rclpy.parameter import Parameter
 
@@ -204,10 +216,9 @@ def _make_node(name: str, context, overrides: dict[str, Any]):
 def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, rate: str = "max",
         processes: str = "single", overrides: dict[str, dict[str, Any]] | None = None,
         snapshot_every: int = 200, progress: bool = True, idle_timeout_s: float = 60.0,
-        domain_id: int | None = None) -> RunResult:
+        domain_id: int | None = None, executor: str = "single") -> RunResult:
     """Replay `bag` through the graph and write the outputs into `out_dir`; returns the summary."""
     import rclpy
-    from rclpy.executors import SingleThreadedExecutor
 
     if processes not in ("single", "multi"):
         raise RunError(f"--processes must be 'single' or 'multi', got {processes!r}")
@@ -234,7 +245,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     t_start = time.monotonic()
     try:
         rec_node = rclpy.create_node("pf_slam_recorder", context=ctx)
-        ex = SingleThreadedExecutor(context=ctx)
+        ex = make_executor(executor, ctx)
         ex.add_node(rec_node)
         rec = _Recorder(rec_node, out, scans_total, bag_duration_s, snapshot_every, progress)
         replay = None
@@ -338,7 +349,7 @@ def _spawn(per_node: dict[str, dict[str, Any]], domain_id: int, out: Path) -> li
 
 def run_cli(args: Any, log: Callable[[str], None] = print) -> int:
     res = run(args.bag, args.out, params_file=args.params, rate=args.rate, processes=args.processes,
-              overrides=_cli_overrides(args), snapshot_every=args.snapshot_every)
+              overrides=_cli_overrides(args), snapshot_every=args.snapshot_every, executor=args.executor)
     s = res.summary
     log(f"{s['scans_processed']} scans ({s['scans_corrected']} corrected), {s['scans_dropped']} dropped, "
         f"wall {s['wall_time_s']:.1f} s, RTF {s['real_time_factor']}x; outputs in {args.out}")
