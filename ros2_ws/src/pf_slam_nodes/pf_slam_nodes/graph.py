@@ -133,7 +133,7 @@ class _Recorder:
     def __init__(self, node, out_dir: Path, scans_total: int, bag_duration_s: float,
                  snapshot_every: int, progress: bool) -> None:
         from nav_msgs.msg import OccupancyGrid
-        from pf_slam_interfaces.msg import ParticleArray
+        from pf_slam_interfaces.msg import ParticleArray, ReplayStatus
 
         from .ros import qos, topics
         self.node = node
@@ -146,10 +146,15 @@ class _Recorder:
         self.poses: list[np.ndarray] = []
         self.updates = 0
         self.map_msg = None
+        self.replay_counts: dict[str, int] | None = None
         self.t0 = time.monotonic()
         self._last_print = 0.0
         node.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         node.create_subscription(OccupancyGrid, topics.MAP, self._on_map, qos.latched())
+        node.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
+
+    def _on_replay_status(self, msg) -> None:
+        self.replay_counts = dict(zip(msg.topics, (int(c) for c in msg.counts)))
 
     def _on_updated(self, msg) -> None:
         from .ros import convert
@@ -216,6 +221,7 @@ def _make_node(name: str, context, overrides: dict[str, Any]):
 def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, rate: str = "max",
         processes: str = "single", overrides: dict[str, dict[str, Any]] | None = None,
         snapshot_every: int = 200, progress: bool = True, idle_timeout_s: float = 60.0,
+        drain_timeout_s: float = 5.0,
         domain_id: int | None = None, executor: str = "single") -> RunResult:
     """Replay `bag` through the graph and write the outputs into `out_dir`; returns the summary."""
     import rclpy
@@ -248,23 +254,24 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         ex = make_executor(executor, ctx)
         ex.add_node(rec_node)
         rec = _Recorder(rec_node, out, scans_total, bag_duration_s, snapshot_every, progress)
-        replay = None
         if processes == "single":
             for name in NODE_NAMES:
                 node = _make_node(name, ctx, per_node[name])
                 nodes.append(node)
                 ex.add_node(node)
-            replay = nodes[0]
         else:
             children = _spawn(per_node, domain_id, out)
         last_progress, last_count = time.monotonic(), -1
 
         def finished() -> bool:
-            if len(rec.poses) < scans_total:
-                return False
             m = rec.map_msg
-            return m is not None and (m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
-                                      == rec.stamps[-1])
+            if len(rec.poses) >= scans_total:
+                return m is not None and (m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
+                                          == rec.stamps[-1])
+            # paced replays (--rate N) may lose scans under load: once the bag is out and the
+            # pipeline has been idle for drain_timeout_s, finish and report them as dropped
+            return (rec.replay_counts is not None and m is not None
+                    and time.monotonic() - last_progress > drain_timeout_s)
 
         while not finished():
             ex.spin_once(timeout_sec=0.05)
@@ -279,7 +286,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
                                "scans processed")
         wall = time.monotonic() - t_start
         rec.print_progress(final=True)
-        scans_published = replay.scans_published if replay is not None else scans_total
+        scans_published = (rec.replay_counts or {}).get("/scan", scans_total)
     finally:
         for c in children:
             if c.poll() is None:
@@ -317,6 +324,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         "particles": int(per_node["predictor"].get("filter.num_particles", _default_particles())),
         "processes": processes,
         "rate": rate,
+        "executor": executor if processes == "single" else "single (per process)",
         "peak_rss_mb": round(peak, 1),
         "complete": True,
     }
