@@ -143,3 +143,28 @@ def test_slam_skipped_scans_get_odometry_pose():
     np.testing.assert_allclose(p0, odom[0])
     np.testing.assert_allclose(p2, compose(odom[0], relative_pose(odom[0], odom[2])), atol=1e-12)
     assert slam.num_updates == 0
+
+
+@pytest.mark.parametrize("residual", ["likelihood", "distance"])
+def test_refine_converges_and_never_increases_cost(residual):
+    from pf_slam_nodes.core.correlation import _cost, refine
+    occ = world()
+    true_pose = np.array([6.1, 5.2, 0.4])
+    ang = beam_angles(-math.pi / 2, math.pi / 180, 181)
+    pts = scan_to_points(raycast(occ, true_pose, ang), ang, 0.1, 19.0)
+    cfg = CorrelationConfig()
+    field = build_likelihood_field(occ, RES, cfg.sigma_m, cfg.occupied_threshold, (0.0, 0.0), cfg.max_distance_m)
+    starts = np.array([compose(true_pose, np.array(o)) for o in
+                       [(0.03, -0.02, 0.01), (-0.04, 0.03, -0.02), (0.0, 0.0, 0.0), (0.02, 0.02, 0.03)]])
+    d0 = _cost(starts, pts, field, residual)[0]
+    best, cost = refine(starts, pts, field, 30, residual)
+    assert np.all(cost <= (d0 * d0).sum(axis=1) + 1e-12)
+    d1 = _cost(best, pts, field, residual)[0]
+    np.testing.assert_allclose(cost, (d1 * d1).sum(axis=1), rtol=1e-9)
+    # the starts converge to the optimum reached from the true pose (the raycast world's own bias)
+    opt, _ = refine(true_pose[None], pts, field, 30, residual)
+    e1 = np.hypot(*relative_pose(opt[0], best)[:, :2].T)
+    assert np.median(e1) < 0.01
+    # zero iterations: poses unchanged (angle-wrapped)
+    same, _ = refine(starts, pts, field, 0, residual)
+    np.testing.assert_allclose(same, starts, atol=1e-12)
