@@ -232,8 +232,8 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     layers = [detect_inputs(bag, info)]
     if params_file:
         layers.append(load_params(params_file))
-    layers.append({"bag_replay": {"bag": str(bag), "rate": str(rate), "expected_observers": 1,
-                                  "startup_settle_s": 0.0 if processes == "single" else 1.0}})
+    layers.append({"bag_replay": {"bag": str(bag), "rate": str(rate)},
+                   "correlator": {"expected_observers": 1}})  # the recorder below
     if overrides:
         layers.append(overrides)
     per_node = {n: node_params(layers, n) for n in NODE_NAMES}
@@ -247,10 +247,12 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=domain_id)
     children: list[subprocess.Popen] = []
-    nodes = []
+    nodes = []  # every node of this process, destroyed at the end: a node left alive keeps its
+    ex = None   # DDS readers matched by later runs on the same domain (ghost subscribers)
     t_start = time.monotonic()
     try:
         rec_node = rclpy.create_node("pf_slam_recorder", context=ctx)
+        nodes.append(rec_node)
         ex = make_executor(executor, ctx)
         ex.add_node(rec_node)
         rec = _Recorder(rec_node, out, scans_total, bag_duration_s, snapshot_every, progress)
@@ -297,6 +299,8 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
             except subprocess.TimeoutExpired:
                 c.kill()
                 c.wait()
+        if ex is not None:
+            ex.shutdown()
         for node in nodes:
             node.destroy_node()
         if ctx.ok():

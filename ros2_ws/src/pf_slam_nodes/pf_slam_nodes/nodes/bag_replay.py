@@ -16,6 +16,7 @@ from pf_slam_interfaces.msg import ParticleArray, ReplayStatus
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rosgraph_msgs.msg import Clock
+from std_msgs.msg import String
 
 from ..io.bag import bag_info, read_bag
 from ..ros import convert, qos, topics
@@ -56,15 +57,7 @@ class BagReplay(Node):
         self.max_in_flight = param(self, "max_in_flight", 2)
         self.scan_topic = param(self, "scan_topic", "/scan")
         self.clock_period_ns = int(param(self, "clock_period_s", 0.01) * 1e9)
-        self.startup_settle_s = param(self, "startup_settle_s", 0.5)
-        self.ready_since: float | None = None
-        # predictor + correlator + mapper on scans; predictor + mapper + this node on the corrected
-        # sets, plus observers that must see every scan (the recorder of `pf-slam run`)
-        observers = param(self, "expected_observers", 0)
-        self.required_subscribers = {self.scan_topic: 3,
-                                     self.resolve_topic_name(topics.PARTICLES_UPDATED): 3 + observers,
-                                     self.resolve_topic_name(topics.PARTICLES_PREDICTED): 1,
-                                     self.resolve_topic_name(topics.GRID): 1}
+        self.ready_nodes: set[str] = set()
         info = bag_info(self.bag)
         self.info = info
         self.scans_in_bag = info["topics"].get(self.scan_topic, ("", 0))[1]
@@ -76,6 +69,7 @@ class BagReplay(Node):
         self.pub_status = self.create_publisher(ReplayStatus, topics.REPLAY_STATUS, qos.latched())
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_progress,
                                  qos.pipeline(), raw=True)
+        self.create_subscription(String, topics.READY, self._on_ready, qos.latched(depth=10))
         self.messages = read_bag(self.bag)
         self.pending: tuple[str, str, int, bytes] | None = None
         self.published: dict[str, int] = {t: 0 for t in info["topics"]}
@@ -93,18 +87,15 @@ class BagReplay(Node):
         if self.timer.is_canceled() and not self.done:
             self.timer.reset()
 
-    def graph_ready(self) -> bool:
-        """True once the pipeline's subscribers are discovered (+ a settle time), so nothing is lost.
+    def _on_ready(self, msg: String) -> None:
+        self.ready_nodes.add(msg.data)
 
-        Reliable, volatile topics lose what is published before a subscriber matches: wait for
-        the predictor, correlator and mapper on the scan topic and for the pipeline topics.
-        """
-        if self.ready_since is None:
-            for topic, n in self.required_subscribers.items():
-                if self.count_subscribers(topic) < n:
-                    return False
-            self.ready_since = time.monotonic()
-        return time.monotonic() - self.ready_since >= self.startup_settle_s
+    def graph_ready(self) -> bool:
+        """True once nothing published can be lost: every stage announced that its outputs are
+        matched (pf_slam/ready), and the scan topic has its 3 subscribers matched here."""
+        scan_pub = self.publishers_.get(self.scan_topic)
+        return (self.ready_nodes >= {"predictor", "correlator", "mapper"}
+                and (scan_pub is None or scan_pub.get_subscription_count() >= 3))
 
     def pump(self, budget: int = 200) -> None:
         """Publish what may be published now (at most `budget` messages)."""

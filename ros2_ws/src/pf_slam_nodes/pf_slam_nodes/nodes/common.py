@@ -58,6 +58,30 @@ def param(node: Node, name: str, default: T) -> T:
     return v
 
 
+def announce_when_matched(node: Node, needs: list[tuple[Any, int]], period_s: float = 0.05) -> None:
+    """Publish the node's name on pf_slam/ready (latched) once each publisher in `needs` has at
+    least its number of matched subscriptions.
+
+    Reliable, volatile topics lose what is published before a subscriber matches, so the replay
+    starts only when every stage has announced (DDS matching is per writer/reader pair: only the
+    publishing node can see it).
+    """
+    from std_msgs.msg import String
+
+    from ..ros import qos, topics
+    pub = node.create_publisher(String, topics.READY, qos.latched(depth=1))
+    timer = None
+
+    def check() -> None:
+        if all(p.get_subscription_count() >= n for p, n in needs):
+            node.get_logger().info("ready: " + ", ".join(
+                f"{p.topic_name} matched {p.get_subscription_count()} "
+                f"{[i.node_name for i in node.get_subscriptions_info_by_topic(p.topic_name)]}" for p, _ in needs))
+            pub.publish(String(data=node.get_name()))
+            timer.cancel()
+    timer = node.create_timer(period_s, check)
+
+
 def run_node(factory: Callable[..., Node], args: list[str] | None = None) -> int:
     """`main()` of a node console script: init, spin until Ctrl-C / shutdown, clean up."""
     rclpy.init(args=args)

@@ -23,7 +23,7 @@ from sensor_msgs.msg import LaserScan
 from ..core.motion import compose
 from ..core.stages import CorrectionStage, MapPatch
 from ..ros import convert, qos, topics
-from .common import declare_config, param, run_node
+from .common import announce_when_matched, declare_config, param, run_node
 
 
 class Correlator(Node):
@@ -39,6 +39,8 @@ class Correlator(Node):
         self.corrections_sent = 0
         self.pub_updated = self.create_publisher(ParticleArray, topics.PARTICLES_UPDATED, qos.pipeline())
         self.pub_pose = self.create_publisher(PoseStamped, topics.POSE, qos.outputs())
+        # predictor, mapper, bag_replay (+ observers that must see every scan, e.g. a recorder)
+        announce_when_matched(self, [(self.pub_updated, 3 + param(self, "expected_observers", 0))])
         self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline())
         self.create_subscription(ParticleArray, topics.PARTICLES_PREDICTED, self._on_predicted, qos.pipeline())
         self.create_subscription(OccupancyGrid, topics.GRID, self._on_grid, qos.pipeline(10))

@@ -22,7 +22,7 @@ from tf2_msgs.msg import TFMessage
 from ..core.motion import compose, relative_pose
 from ..core.stages import MappingStage
 from ..ros import convert, qos, topics
-from .common import declare_config, param, run_node
+from .common import announce_when_matched, declare_config, param, run_node
 
 
 class Mapper(Node):
@@ -44,6 +44,7 @@ class Mapper(Node):
         self.pub_meta = self.create_publisher(MapMetaData, topics.MAP_METADATA, qos.latched())
         self.pub_path = self.create_publisher(Path, topics.PATH, qos.outputs(10))
         self.pub_tf = self.create_publisher(TFMessage, topics.TF, qos.outputs())
+        announce_when_matched(self, [(self.pub_grid, 1)])  # the correlator
         self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline())
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())

@@ -23,7 +23,7 @@ from sensor_msgs.msg import JointState, LaserScan
 from ..core.odometry import OdometryBuffer, WheelOdometryIntegrator
 from ..core.stages import PredictionStage
 from ..ros import convert, qos, topics
-from .common import declare_config, param, run_node
+from .common import announce_when_matched, declare_config, param, run_node
 
 
 class Predictor(Node):
@@ -42,6 +42,7 @@ class Predictor(Node):
         self.odom_expected: int | None = None  # from the replay's final counts
         self.odom_topic = self.resolve_topic_name(topics.ODOM if source == "odom" else topics.ENCODERS)
         self.pub = self.create_publisher(ParticleArray, topics.PARTICLES_PREDICTED, qos.pipeline())
+        announce_when_matched(self, [(self.pub, 1)])  # the correlator
         self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline())
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
