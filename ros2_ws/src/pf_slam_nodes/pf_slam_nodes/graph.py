@@ -87,7 +87,8 @@ def node_params(layers: list[dict[str, dict[str, Any]]], node: str) -> dict[str,
 
 # ---------------------------------------------------------------------------- bag inspection
 def detect_inputs(bag: str, info: dict) -> dict[str, dict[str, Any]]:
-    """Parameters implied by the bag's topics: odometry source and how odometry pairs with scans."""
+    """Parameters implied by the bag: odometry source and pairing, gyro, wheel geometry (from a
+    converted bag's custom data), and the laser's 3D mounting (from /tf_static) when it is tilted."""
     topics = info["topics"]
     if "/scan" not in topics:
         found = ", ".join(f"{t} [{m}]" for t, (m, _) in sorted(topics.items())) or "none"
@@ -99,12 +100,13 @@ def detect_inputs(bag: str, info: dict) -> dict[str, dict[str, Any]]:
     else:
         raise RunError(f"{bag}: needs /odom (nav_msgs/msg/Odometry) or /encoders "
                        f"(sensor_msgs/msg/JointState) for the motion model; found: {', '.join(topics)}")
-    scan_stamps, odom_stamps = [], set()
+    scan_stamps, odom_stamps, scan_frame = [], set(), None
     for t, msgtype, _, raw in read_bag(bag, topics=["/scan", topic]):
         msg = deserialize(raw, msgtype)
         ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         if t == "/scan":
             scan_stamps.append(ns)
+            scan_frame = msg.header.frame_id
         else:
             odom_stamps.add(ns)
         if len(scan_stamps) >= 200:
@@ -112,11 +114,47 @@ def detect_inputs(bag: str, info: dict) -> dict[str, dict[str, Any]]:
     exact = bool(scan_stamps) and sum(s in odom_stamps for s in scan_stamps) >= 0.9 * len(scan_stamps)
     predictor: dict[str, Any] = {"odometry_source": source, "odom_sync": "exact" if exact else "interpolate"}
     custom = info.get("custom_data", {})
-    if source == "encoders" and "pf_slam.wheel_radius_m" in custom:  # written by `convert mines`
-        d = 2.0 * float(custom["pf_slam.wheel_radius_m"])
-        predictor.update({"wheels.left_diameter_m": d, "wheels.right_diameter_m": d,
-                          "wheels.base_m": 2.0 * float(custom["pf_slam.half_axle_m"])})
-    return {"predictor": predictor}
+    if source == "encoders":
+        if "pf_slam.wheel_radius_m" in custom:  # written by `convert mines`
+            d = 2.0 * float(custom["pf_slam.wheel_radius_m"])
+            predictor.update({"wheels.left_diameter_m": d, "wheels.right_diameter_m": d,
+                              "wheels.base_m": 2.0 * float(custom["pf_slam.half_axle_m"])})
+        elif "pf_slam.wheel_base_m" in custom:  # written by `convert kaist`
+            predictor.update({"wheels.left_diameter_m": float(custom["pf_slam.left_wheel_diameter_m"]),
+                              "wheels.right_diameter_m": float(custom["pf_slam.right_wheel_diameter_m"]),
+                              "wheels.base_m": float(custom["pf_slam.wheel_base_m"])})
+        if "/fog" in topics:
+            fog_type = topics["/fog"][0]
+            predictor["fog_format"] = {"pf_slam_interfaces/msg/FogBatch": "batch",
+                                       "geometry_msgs/msg/Vector3Stamped": "vector3"}.get(fog_type)
+            if predictor["fog_format"] is None:
+                raise RunError(f"{bag}: /fog has type {fog_type}; expected pf_slam_interfaces/msg/FogBatch "
+                               "or geometry_msgs/msg/Vector3Stamped")
+    out: dict[str, dict[str, Any]] = {"predictor": predictor}
+    mount = _laser_mount(bag, topics, scan_frame)
+    if mount is not None:
+        out["/**"] = {"laser.extrinsic": mount}
+    return out
+
+
+def _laser_mount(bag: str, topics: dict, scan_frame: str | None) -> list[float] | None:
+    """R (row-major) + T of base_link -> the scan's frame from /tf_static, if it is not planar."""
+    if "/tf_static" not in topics or not scan_frame:
+        return None
+    for _, msgtype, _, raw in read_bag(bag, topics=["/tf_static"]):
+        for tr in deserialize(raw, msgtype).transforms:
+            if tr.child_frame_id != scan_frame:
+                continue
+            q = tr.transform.rotation
+            x, y, z, w = q.x, q.y, q.z, q.w
+            rot = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+            if abs(rot[2, 2] - 1.0) < 1e-6:  # scan plane horizontal: the 2D path is exact
+                return None
+            t = tr.transform.translation
+            return [float(v) for v in rot.reshape(-1)] + [float(t.x), float(t.y), float(t.z)]
+    return None
 
 
 # ---------------------------------------------------------------------------- the run

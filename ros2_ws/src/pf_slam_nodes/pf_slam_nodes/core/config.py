@@ -360,3 +360,55 @@ class FilterConfig(_ConfigBase):
     def sensor_offset(self) -> np.ndarray:
         """Laser pose in the base frame, ``(3,)`` float64 ``[x, y, yaw]``."""
         return np.array([self.sensor_offset_x_m, self.sensor_offset_y_m, self.sensor_offset_yaw_rad])
+
+
+@dataclasses.dataclass(frozen=True)
+class LaserConfig(_ConfigBase):
+    """How the laser's returns become planar points for a 2D map.
+
+    A planar laser (the CARMEN robots) needs nothing here: its 2D mounting is
+    ``filter.sensor_offset_*``. A tilted laser (the car's LMS511, roll ~143 deg) is projected
+    in 3D: each return ``r`` at beam angle ``a`` is ``R @ [r cos a, r sin a, 0] + T`` in the
+    vehicle frame; returns outside ``[min_range_m, max_range_m]`` or whose height is outside
+    ``[min_height_m, max_height_m]`` (the ground, the sky) are dropped, and the rest are used by
+    their ``(x, y)`` as if measured by a planar sensor at ``(T_x, T_y)``.
+
+    Attributes
+    ----------
+    extrinsic : tuple of 12 float
+        ``R`` row-major (9, laser frame -> vehicle frame) then ``T`` (3, m). All zeros: planar.
+    min_range_m, max_range_m : float
+        Range gate (m).
+    min_height_m, max_height_m : float
+        Height gate in the vehicle frame (m).
+    """
+
+    extrinsic: tuple = (0.0,) * 12
+    min_range_m: float = 0.0
+    max_range_m: float = 1000.0
+    min_height_m: float = -1000.0
+    max_height_m: float = 1000.0
+
+    def __post_init__(self) -> None:
+        ext = tuple(self.extrinsic)
+        if len(ext) != 12:
+            raise ValueError(f"extrinsic must have 12 numbers (R row-major, T), got {len(ext)}")
+        for v in ext:
+            _check_finite("extrinsic", v)
+        object.__setattr__(self, "extrinsic", tuple(float(v) for v in ext))
+        if any(ext):
+            r = np.asarray(ext[:9], dtype=np.float64).reshape(3, 3)
+            if not np.allclose(r @ r.T, np.eye(3), atol=1e-3):
+                raise ValueError(f"extrinsic rotation is not orthonormal: {ext[:9]!r}")
+        _check_nonneg("min_range_m", self.min_range_m)
+        _check_pos("max_range_m", self.max_range_m)
+        _check_finite("min_height_m", self.min_height_m)
+        _check_finite("max_height_m", self.max_height_m)
+        if self.max_range_m <= self.min_range_m:
+            raise ValueError(f"max_range_m must be > min_range_m, got {self.max_range_m!r}")
+        if self.max_height_m <= self.min_height_m:
+            raise ValueError(f"max_height_m must be > min_height_m, got {self.max_height_m!r}")
+
+    @property
+    def is_3d(self) -> bool:
+        return any(self.extrinsic)

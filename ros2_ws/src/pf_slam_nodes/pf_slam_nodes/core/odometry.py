@@ -149,3 +149,48 @@ class WheelOdometryIntegrator:
         self.pose = integrate_diff_drive(self.pose, float(d), float(w))
         self._last = (left_rad, right_rad)
         return self.pose.copy()
+
+
+class GyroBuffer:
+    """Gyro (FOG) yaw increments in stamp order; sums them over a time interval.
+
+    The car's FOG runs at 1 kHz and its samples do not line up with the 100 Hz encoders: the
+    yaw change of an encoder step ``(t0, t1]`` is the sum of the increments stamped in it.
+    """
+
+    def __init__(self) -> None:
+        self._stamps = np.zeros(0, dtype=np.int64)
+        self._cum = np.zeros(1)  # cumulative yaw; _cum[k] = sum of the first k increments
+        self.out_of_order = 0
+
+    @property
+    def last_stamp(self) -> int:
+        return int(self._stamps[-1]) if self._stamps.size else -1
+
+    def add(self, stamps_ns: np.ndarray, dyaw_rad: np.ndarray) -> None:
+        st = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
+        dy = np.asarray(dyaw_rad, dtype=np.float64).reshape(-1)
+        if st.shape != dy.shape:
+            raise ValueError(f"gyro batch: {st.size} stamps but {dy.size} increments")
+        keep = st > self.last_stamp
+        if self._stamps.size and not keep.all():
+            self.out_of_order += int((~keep).sum())  # a stamp at or before the last one: dropped
+        st, dy = st[keep], dy[keep]
+        if st.size > 1 and np.any(np.diff(st) <= 0):
+            order = np.argsort(st, kind="stable")
+            st, dy = st[order], dy[order]
+        self._stamps = np.concatenate([self._stamps, st])
+        self._cum = np.concatenate([self._cum, self._cum[-1] + np.cumsum(dy)])
+
+    def yaw_between(self, t0_ns: int, t1_ns: int) -> float:
+        """Sum of the increments stamped in ``(t0, t1]`` (rad)."""
+        i0 = int(np.searchsorted(self._stamps, t0_ns, side="right"))
+        i1 = int(np.searchsorted(self._stamps, t1_ns, side="right"))
+        return float(self._cum[i1] - self._cum[i0])
+
+    def trim(self, before_ns: int) -> None:
+        """Forget increments stamped at or before ``before_ns`` (keeps memory bounded)."""
+        k = int(np.searchsorted(self._stamps, before_ns, side="right"))
+        if k > 10000:
+            self._stamps = self._stamps[k:]
+            self._cum = self._cum[k:]

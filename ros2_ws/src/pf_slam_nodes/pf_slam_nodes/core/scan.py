@@ -125,3 +125,34 @@ def transform_points_batch(points: np.ndarray, poses: np.ndarray) -> np.ndarray:
     out[..., 0] = q[:, 0:1] + c * p[None, :, 0] - s * p[None, :, 1]
     out[..., 1] = q[:, 1:2] + s * p[None, :, 0] + c * p[None, :, 1]
     return out
+
+
+def planar_scan(ranges: np.ndarray, angles: np.ndarray, laser, planar_offset: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A scan as a planar sensor in the vehicle frame sees it: ``(ranges, angles, offset (3,))``.
+
+    For a planar laser (``laser.is_3d`` false) the scan is returned as it is with
+    ``planar_offset``, only range-gated. For a 3D mount (see
+    :class:`~pf_slam_nodes.core.config.LaserConfig`) every return is projected into the vehicle
+    frame, gated by range and height, and re-expressed as range/bearing from the sensor's
+    ground projection ``(T_x, T_y)``; dropped beams become NaN (ignored downstream, never
+    "free space"). Vectorised over beams.
+    """
+    r = np.asarray(ranges, dtype=np.float64)
+    a = np.asarray(angles, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        out_of_gate = (r < laser.min_range_m) | (r > laser.max_range_m)
+    if not laser.is_3d:
+        # beyond max_range_m: no return (inf), below min_range_m: ignored (NaN)
+        r = np.where(r < laser.min_range_m, np.nan, np.where(r > laser.max_range_m, np.inf, r))
+        return r, a, np.asarray(planar_offset, dtype=np.float64).reshape(3)
+    ext = np.asarray(laser.extrinsic, dtype=np.float64)
+    rot, t = ext[:9].reshape(3, 3), ext[9:]
+    with np.errstate(invalid="ignore"):
+        local = np.stack([r * np.cos(a), r * np.sin(a), np.zeros_like(r)])  # (3, B)
+        p = rot @ local + t[:, None]
+        keep = np.isfinite(r) & ~out_of_gate & (p[2] >= laser.min_height_m) & (p[2] <= laser.max_height_m)
+    dx, dy = p[0] - t[0], p[1] - t[1]
+    r2 = np.where(keep, np.hypot(dx, dy), np.nan)
+    a2 = np.where(keep, np.arctan2(dy, dx), 0.0)
+    return r2, a2, np.array([t[0], t[1], 0.0])

@@ -14,7 +14,8 @@ from typing import Optional
 
 import numpy as np
 
-from .config import CorrelationConfig, FilterConfig, GridConfig, OdometryMotionConfig, ResampleConfig
+from .config import (CorrelationConfig, FilterConfig, GridConfig, LaserConfig, OdometryMotionConfig,
+                     ResampleConfig)
 from .correlation import GridLikelihoodField
 from .grid import LogOddsGrid
 from .motion import compose
@@ -41,10 +42,11 @@ class ParticleFilterSlam:
     """
 
     def __init__(self, filter_cfg: FilterConfig, motion_cfg: OdometryMotionConfig, grid_cfg: GridConfig,
-                 corr_cfg: CorrelationConfig, resample_cfg: ResampleConfig) -> None:
+                 corr_cfg: CorrelationConfig, resample_cfg: ResampleConfig,
+                 laser_cfg: Optional[LaserConfig] = None) -> None:
         self.predictor = PredictionStage(filter_cfg, motion_cfg)
-        self.corrector = CorrectionStage(filter_cfg, grid_cfg, corr_cfg, resample_cfg)
-        self.mapper = MappingStage(filter_cfg, grid_cfg)
+        self.corrector = CorrectionStage(filter_cfg, grid_cfg, corr_cfg, resample_cfg, laser_cfg)
+        self.mapper = MappingStage(filter_cfg, grid_cfg, laser_cfg)
         self.timings = {k: 0.0 for k in STAGES}
         self.counts = {k: 0 for k in STAGES}
         self.num_updates = 0  # corrections after the first scan

@@ -20,12 +20,13 @@ from typing import Optional
 
 import numpy as np
 
-from .config import CorrelationConfig, FilterConfig, GridConfig, OdometryMotionConfig, ResampleConfig
+from .config import (CorrelationConfig, FilterConfig, GridConfig, LaserConfig, OdometryMotionConfig,
+                     ResampleConfig)
 from .correlation import GridLikelihoodField, correlate
 from .filter import n_eff, resample, update_log_weights
 from .grid import LogOddsGrid, grid_geometry
 from .motion import relative_pose, sample_odometry_motion
-from .scan import scan_to_points, transform_points
+from .scan import planar_scan, scan_to_points, transform_points
 
 MOTION_STREAM = 1
 RESAMPLE_STREAM = 2
@@ -94,8 +95,9 @@ class CorrectionStage:
     """Scan-to-map correlation of every particle, weight update, resampling."""
 
     def __init__(self, filter_cfg: FilterConfig, grid_cfg: GridConfig, corr_cfg: CorrelationConfig,
-                 resample_cfg: ResampleConfig) -> None:
+                 resample_cfg: ResampleConfig, laser_cfg: Optional[LaserConfig] = None) -> None:
         self.filter_cfg = filter_cfg
+        self.laser_cfg = laser_cfg or LaserConfig()
         self.grid_cfg = grid_cfg
         self.corr_cfg = corr_cfg
         self.resample_cfg = resample_cfg
@@ -131,8 +133,8 @@ class CorrectionStage:
         """Correct a predicted set with a scan (ranges (B,), beam angles (B,) in the sensor frame)."""
         particles = np.asarray(particles, dtype=np.float64).reshape(-1, 3)
         log_w = np.asarray(log_weights, dtype=np.float64)
+        ranges, angles, offset = planar_scan(ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset)
         pts = scan_to_points(ranges, angles, max(range_min, 1e-6), min(range_max, self.corr_cfg.range_max_m))
-        offset = self.filter_cfg.sensor_offset
         if np.any(offset):
             pts = transform_points(pts, offset)
         matched = self.field is not None and pts.shape[0] > 0
@@ -155,9 +157,11 @@ class CorrectionStage:
 class MappingStage:
     """The log-odds grid: integrates scans at corrected poses, exports occupancy."""
 
-    def __init__(self, filter_cfg: FilterConfig, grid_cfg: GridConfig) -> None:
+    def __init__(self, filter_cfg: FilterConfig, grid_cfg: GridConfig,
+                 laser_cfg: Optional[LaserConfig] = None) -> None:
         self.filter_cfg = filter_cfg
         self.grid_cfg = grid_cfg
+        self.laser_cfg = laser_cfg or LaserConfig()
         self.grid: Optional[LogOddsGrid] = None
         self.pose: Optional[np.ndarray] = None
 
@@ -172,7 +176,8 @@ class MappingStage:
         if self.grid is None:
             self.grid = LogOddsGrid(self.grid_cfg, center_xy=pose[:2])
         g = self.grid
-        g.integrate_scan(pose, ranges, angles, self.filter_cfg.sensor_offset, range_min, range_max)
+        ranges, angles, offset = planar_scan(ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset)
+        g.integrate_scan(pose, ranges, angles, offset, range_min, range_max)
         self.pose = pose.copy()
         idx = g.last_touched_idx
         if idx.size == 0:

@@ -22,6 +22,7 @@ CONFIG_SECTIONS: dict[str, type] = {
     "grid": cfg.GridConfig,
     "correlation": cfg.CorrelationConfig,
     "resample": cfg.ResampleConfig,
+    "laser": cfg.LaserConfig,
 }
 
 
@@ -36,8 +37,11 @@ def declare_config(node: Node, prefix: str) -> Any:
     for f in dataclasses.fields(cls):
         default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
         name = f"{prefix}.{f.name}"
-        p = node.declare_parameter(name, default, ParameterDescriptor(dynamic_typing=True))
+        p = node.declare_parameter(name, list(default) if isinstance(default, tuple) else default,
+                                   ParameterDescriptor(dynamic_typing=True))
         v = p.value
+        if isinstance(default, tuple):
+            v = tuple(float(x) for x in v)
         if isinstance(default, float) and isinstance(v, int) and not isinstance(v, bool):
             v = float(v)
         values[f.name] = v

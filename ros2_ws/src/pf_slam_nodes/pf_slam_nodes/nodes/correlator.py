@@ -31,7 +31,8 @@ class Correlator(Node):
         super().__init__("correlator", **kwargs)
         filter_cfg = declare_config(self, "filter")
         self.stage = CorrectionStage(filter_cfg, declare_config(self, "grid"),
-                                     declare_config(self, "correlation"), declare_config(self, "resample"))
+                                     declare_config(self, "correlation"), declare_config(self, "resample"),
+                                     declare_config(self, "laser"))
         self.map_frame = param(self, "map_frame", "map")
         self.scans: deque[LaserScan] = deque()
         self.predicted: deque[ParticleArray] = deque()

@@ -28,7 +28,8 @@ from .common import announce_when_matched, declare_config, param, run_node
 class Mapper(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("mapper", **kwargs)
-        self.stage = MappingStage(declare_config(self, "filter"), declare_config(self, "grid"))
+        self.stage = MappingStage(declare_config(self, "filter"), declare_config(self, "grid"),
+                                  declare_config(self, "laser"))
         self.map_frame = param(self, "map_frame", "map")
         self.odom_frame = param(self, "odom_frame", "odom")
         period = param(self, "map_publish_period_s", 1.0)

@@ -1,7 +1,8 @@
 """predictor: owns the particle set between scans and moves it with the motion model.
 
 Subscribes: scan (LaserScan; only its stamp is used), odom (nav_msgs/Odometry) or
-encoders (JointState wheel angles, rad), particles/updated (the corrected set),
+encoders (JointState wheel angles, rad) with optional fog (FogBatch or Vector3Stamped yaw
+increments, which then replace the wheels' yaw), particles/updated (the corrected set),
 pf_slam/replay_status (end of the bag). Publishes: particles/predicted (one per scan).
 
 Per scan, in order: the odometry pose at the scan stamp is looked up; if the robot moved less
@@ -16,11 +17,12 @@ from collections import deque
 
 import numpy as np
 from nav_msgs.msg import Odometry
-from pf_slam_interfaces.msg import ParticleArray, ReplayStatus
+from geometry_msgs.msg import Vector3Stamped
+from pf_slam_interfaces.msg import FogBatch, ParticleArray, ReplayStatus
 from rclpy.node import Node
 from sensor_msgs.msg import JointState, LaserScan
 
-from ..core.odometry import OdometryBuffer, WheelOdometryIntegrator
+from ..core.odometry import GyroBuffer, OdometryBuffer, WheelOdometryIntegrator
 from ..core.stages import PredictionStage
 from ..ros import convert, qos, topics
 from .common import announce_when_matched, declare_config, param, run_node
@@ -52,7 +54,23 @@ class Predictor(Node):
             self.wheels = WheelOdometryIntegrator(param(self, "wheels.left_diameter_m", 0.154),
                                                   param(self, "wheels.right_diameter_m", 0.154),
                                                   param(self, "wheels.base_m", 0.33))
+            self.encoders: deque[tuple[int, float, float]] = deque()
+            self.last_encoder_ns: int | None = None
             self.create_subscription(JointState, topics.ENCODERS, self._on_encoders, qos.pipeline(10000))
+        # yaw from a gyro (FOG) instead of the wheels: "none" | "batch" (FogBatch) | "vector3"
+        fog = param(self, "fog_format", "none")
+        if fog not in ("none", "batch", "vector3"):
+            raise ValueError(f"parameter 'fog_format' must be 'none', 'batch' or 'vector3', got {fog!r}")
+        if fog != "none" and source != "encoders":
+            raise ValueError("parameter 'fog_format' needs odometry_source 'encoders'")
+        self.gyro = GyroBuffer() if fog != "none" else None
+        self.fog_received = 0
+        self.fog_expected: int | None = None
+        self.fog_topic = self.resolve_topic_name(topics.FOG)
+        if fog == "batch":
+            self.create_subscription(FogBatch, topics.FOG, self._on_fog_batch, qos.pipeline(10000))
+        elif fog == "vector3":
+            self.create_subscription(Vector3Stamped, topics.FOG, self._on_fog_vector, qos.pipeline(100000))
 
     # ------------------------------------------------------------------ inputs
     def _on_odom(self, msg: Odometry) -> None:
@@ -68,10 +86,36 @@ class Predictor(Node):
             self.get_logger().warn("encoders: JointState with fewer than 2 positions ignored",
                                    throttle_duration_sec=5.0)
             return
-        pose = self.wheels.step(float(msg.position[0]), float(msg.position[1]))
-        self.odom.add(convert.stamp_to_ns(msg.header.stamp), pose)
-        self.odom_received += 1
+        self.encoders.append((convert.stamp_to_ns(msg.header.stamp), float(msg.position[0]),
+                              float(msg.position[1])))
         self._drain()
+
+    def _on_fog_batch(self, msg: FogBatch) -> None:
+        self.gyro.add(np.frombuffer(msg.stamps_ns, dtype=np.int64) if len(msg.stamps_ns) else [],
+                      np.frombuffer(msg.delta_yaw, dtype=np.float64) if len(msg.delta_yaw) else [])
+        self.fog_received += 1
+        self._drain()
+
+    def _on_fog_vector(self, msg: Vector3Stamped) -> None:
+        self.gyro.add([convert.stamp_to_ns(msg.header.stamp)], [msg.vector.z])
+        self.fog_received += 1
+        self._drain()
+
+    def _integrate_encoders(self) -> None:
+        """Wheel steps -> odometry poses, each once the gyro covers its interval (deterministic)."""
+        fog_done = self.fog_expected is not None and self.fog_received >= self.fog_expected
+        while self.encoders:
+            t, left, right = self.encoders[0]
+            if self.gyro is not None:
+                if self.gyro.last_stamp < t and not fog_done:
+                    return  # the gyro samples of this step are not all here yet
+                if self.last_encoder_ns is not None:
+                    self.wheels.add_gyro(self.gyro.yaw_between(self.last_encoder_ns, t))
+                    self.gyro.trim(self.last_encoder_ns)
+            self.encoders.popleft()
+            self.odom.add(t, self.wheels.step(left, right))
+            self.last_encoder_ns = t
+            self.odom_received += 1
 
     def _on_scan(self, msg: LaserScan) -> None:
         self.scans.append((self.scan_count, convert.stamp_to_ns(msg.header.stamp)))
@@ -87,10 +131,13 @@ class Predictor(Node):
     def _on_replay_status(self, msg: ReplayStatus) -> None:
         counts = dict(zip(msg.topics, msg.counts))
         self.odom_expected = int(counts.get(self.odom_topic, 0))
+        self.fog_expected = int(counts.get(self.fog_topic, 0))
         self._drain()
 
     # ------------------------------------------------------------------ the work
     def _drain(self) -> None:
+        if hasattr(self, "encoders"):
+            self._integrate_encoders()
         while self.scans and self.waiting_for is None:
             index, stamp = self.scans[0]
             # a scan whose exact odometry never comes must not block the ones behind it
