@@ -101,6 +101,10 @@ def _dispatch(args: argparse.Namespace) -> int:
         if args.what == "messages":
             from .bench import messages
             print(messages.format_table(messages.run()))
+            fog = messages.measure_fog(10.0)
+            print("\nFOG at 1 kHz, publish + receive, wall s per s of data (one executor):")
+            print("| per-sample Vector3Stamped | FogBatch of 10 |\n|---:|---:|")
+            print(f"| {fog['vector3']:.3f} | {fog['batch']:.3f} |")
         else:
             from .bench import carmen
             print(carmen.main(args.data, args.out, args.datasets, tuple(args.seeds), args.processes))

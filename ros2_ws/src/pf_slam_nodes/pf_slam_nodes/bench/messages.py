@@ -95,3 +95,71 @@ def format_table(rows: list[dict]) -> str:
 
 if __name__ == "__main__":
     print(format_table(run()))
+
+
+def measure_fog(seconds: float = 10.0, batch: int = 10, domain_id: int = 78) -> dict:
+    """Publish + receive one simulated second-by-second FOG stream (1 kHz) through rclpy, in one
+    executor: per-sample geometry_msgs/Vector3Stamped vs FogBatch of `batch` samples.
+
+    Returns wall seconds per second of data for each layout (lower is better; > 0.1 means the
+    FOG alone would stop a 10x-real-time replay).
+    """
+    from geometry_msgs.msg import Vector3Stamped
+
+    from pf_slam_interfaces.msg import FogBatch
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain_id)
+    n = int(seconds * 1000)
+    stamps = (np.arange(n, dtype=np.int64) + 1) * 1_000_000
+    dyaw = np.random.default_rng(0).normal(0, 1e-4, n)
+    out = {}
+    try:
+        for layout in ("vector3", "batch"):
+            pub_node = rclpy.create_node("fog_pub", context=ctx)
+            sub_node = rclpy.create_node("fog_sub", context=ctx)
+            ex = SingleThreadedExecutor(context=ctx)
+            ex.add_node(pub_node)
+            ex.add_node(sub_node)
+            got = [0]
+            if layout == "vector3":
+                def cb(m, got=got):
+                    got[0] += 1
+                sub_node.create_subscription(Vector3Stamped, "fog", cb, qos.pipeline(100000))
+                pub = pub_node.create_publisher(Vector3Stamped, "fog", qos.pipeline(100000))
+                msgs = []
+                for t, d in zip(stamps, dyaw):
+                    m = Vector3Stamped()
+                    m.header.stamp = convert.ns_to_stamp(int(t))
+                    m.vector.z = float(d)
+                    msgs.append(m)
+            else:
+                def cb(m, got=got):
+                    got[0] += len(m.stamps_ns)
+                sub_node.create_subscription(FogBatch, "fog", cb, qos.pipeline(10000))
+                pub = pub_node.create_publisher(FogBatch, "fog", qos.pipeline(10000))
+                msgs = []
+                for k in range(0, n, batch):
+                    m = FogBatch()
+                    m.header.stamp = convert.ns_to_stamp(int(stamps[k + batch - 1]))
+                    m.stamps_ns = array.array("q", stamps[k:k + batch].tobytes())
+                    m.delta_roll = array.array("d", bytes(8 * batch))
+                    m.delta_pitch = array.array("d", bytes(8 * batch))
+                    m.delta_yaw = array.array("d", dyaw[k:k + batch].tobytes())
+                    msgs.append(m)
+            while pub.get_subscription_count() == 0:
+                ex.spin_once(timeout_sec=0.01)
+            t0 = time.perf_counter()
+            for i, m in enumerate(msgs):
+                pub.publish(m)
+                if i % 100 == 99:
+                    while ex.spin_once(timeout_sec=0) is None and got[0] < (i + 1) * (1 if layout == "vector3" else batch) - 2000:
+                        pass
+            while got[0] < n:
+                ex.spin_once(timeout_sec=0.1)
+            out[layout] = (time.perf_counter() - t0) / seconds
+            ex.shutdown()
+            pub_node.destroy_node()
+            sub_node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+    return out
