@@ -44,8 +44,10 @@ __all__ = [
     'STORAGES',
     'TYPESTORE',
     'bag_info',
+    'camera_info',
     'clock',
     'deserialize',
+    'image',
     'joint_state_wheels',
     'laser_scan',
     'make_header',
@@ -382,3 +384,42 @@ def tf_static(stamp_ns: int,
 def clock(stamp_ns: int) -> Any:
     """``rosgraph_msgs/Clock``."""
     return _T['rosgraph_msgs/msg/Clock'](clock=make_time(stamp_ns))
+
+
+def image(stamp_ns: int, frame_id: str, pixels: np.ndarray, encoding: str) -> Any:
+    """``sensor_msgs/Image`` of a ``uint8`` array ``(H, W)`` or ``(H, W, C)``, copied as is.
+
+    ``step = W * C``; ``encoding`` is the ROS name (``'mono8'``, ``'bgr8'``,
+    ``'bayer_rggb8'`` ...), not checked against the array.
+    """
+    a = np.ascontiguousarray(pixels)
+    if a.dtype != np.uint8 or a.ndim not in (2, 3):
+        raise ValueError(f'image pixels must be uint8 (H, W) or (H, W, C), got {a.dtype} '
+                         f'{a.shape}')
+    h, w = a.shape[:2]
+    return _T['sensor_msgs/msg/Image'](
+        header=make_header(stamp_ns, frame_id), height=int(h), width=int(w),
+        encoding=str(encoding), is_bigendian=0, step=int(a.strides[0]),
+        data=a.reshape(-1))
+
+
+def camera_info(stamp_ns: int, frame_id: str, width: int, height: int,
+                distortion_model: str, d: Sequence[float] | np.ndarray,
+                k: Sequence[float] | np.ndarray, r: Sequence[float] | np.ndarray,
+                p: Sequence[float] | np.ndarray) -> Any:
+    """``sensor_msgs/CameraInfo``; ``k`` (3x3), ``r`` (3x3), ``p`` (3x4) row-major, any shape.
+
+    Binning 0 and an empty region of interest (the full image).
+    """
+    def arr(v: Any, n: int | None, name: str) -> np.ndarray:
+        a = np.asarray(v, dtype=np.float64).ravel()
+        if n is not None and a.size != n:
+            raise ValueError(f'camera_info {name} needs {n} values, got {a.size}')
+        return a
+
+    roi = _T['sensor_msgs/msg/RegionOfInterest'](
+        x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+    return _T['sensor_msgs/msg/CameraInfo'](
+        header=make_header(stamp_ns, frame_id), height=int(height), width=int(width),
+        distortion_model=str(distortion_model), d=arr(d, None, 'd'), k=arr(k, 9, 'k'),
+        r=arr(r, 9, 'r'), p=arr(p, 12, 'p'), binning_x=0, binning_y=0, roi=roi)

@@ -30,6 +30,7 @@ import numpy as np
 
 __all__ = [
     'matrix_to_quat',
+    'nearest_rotation',
     'parse_encoder_params',
     'parse_extrinsic',
     'parse_lidar_params',
@@ -85,12 +86,24 @@ def _unit(kv: dict[str, str], key: str) -> str | None:
 def rpy_to_matrix(rpy_deg: np.ndarray | list[float]) -> np.ndarray:
     """Roll, pitch, yaw (deg, "XYZ extrinsic") -> ``Rz(yaw) @ Ry(pitch) @ Rx(roll)``, (3, 3)."""
     r, p, y = np.radians(np.asarray(rpy_deg, dtype=np.float64))
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), \
-        math.sin(y)
+    cr, sr = math.cos(r), math.sin(r)
+    cp, sp = math.cos(p), math.sin(p)
+    cy, sy = math.cos(y), math.sin(y)
     rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
     ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
     rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
     return rz @ ry @ rx
+
+
+def nearest_rotation(rot: np.ndarray) -> np.ndarray:
+    """The rotation matrix closest (Frobenius) to ``rot`` (3, 3): ``U @ V^T`` of its SVD.
+
+    Calibration files round R to ~6 digits, so its columns are unit vectors only to ~1e-5.
+    """
+    u, _, vt = np.linalg.svd(np.asarray(rot, dtype=np.float64))
+    if np.linalg.det(u @ vt) < 0.0:
+        u[:, -1] = -u[:, -1]
+    return u @ vt
 
 
 def matrix_to_quat(rot: np.ndarray) -> tuple[float, float, float, float]:

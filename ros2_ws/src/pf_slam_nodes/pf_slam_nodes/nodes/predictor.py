@@ -154,9 +154,12 @@ class Predictor(Node):
 
     def _predict(self, index: int, stamp: int, odom: np.ndarray) -> None:
         update, delta = self.stage.predict(odom)
+        # a pass-through set carries no particles: only the increment matters downstream
+        poses, log_w = ((self.stage.particles, self.stage.log_weights) if update
+                        else (np.zeros((0, 3)), np.zeros(0)))
         self.pub.publish(convert.particles_to_msg(
-            self.stage.particles, self.stage.log_weights, stamp_ns=stamp, frame_id=self.map_frame,
-            scan_index=index, update=update, odom_pose=odom, pending_delta=None if update else delta))
+            poses, log_w, stamp_ns=stamp, frame_id=self.map_frame, scan_index=index,
+            update=update, odom_pose=odom, pending_delta=None if update else delta))
         if update:
             self.waiting_for = index
 
