@@ -24,6 +24,14 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("log")
     c.add_argument("out_bag")
     c.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
+    k = csub.add_parser("kaist", help="KAIST-layout car dataset (encoders, FOG, lidar, stereo, param/)")
+    k.add_argument("dataset_dir")
+    k.add_argument("out_bag")
+    k.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
+    k.add_argument("--fog-batch", type=int, default=10, help="FOG samples per FogBatch message")
+    k.add_argument("--fog-format", choices=["batch", "vector3"], default="batch",
+                   help="FogBatch messages (default) or one Vector3Stamped per sample")
+    k.add_argument("--no-images", action="store_true", help="leave the stereo images out")
     m = csub.add_parser("mines", help="Mines wheel-encoder + URG log -> /encoders + /scan")
     m.add_argument("dat")
     m.add_argument("out_bag")
@@ -80,6 +88,10 @@ def _dispatch(args: argparse.Namespace) -> int:
         from .io import convert
         if args.format == "carmen":
             rep = convert.convert_carmen(args.log, args.out_bag, storage=args.storage)
+        elif args.format == "kaist":
+            from .io.kaist import convert_kaist
+            rep = convert_kaist(args.dataset_dir, args.out_bag, storage=args.storage, fog_batch=args.fog_batch,
+                                fog_format=args.fog_format, images=not args.no_images)
         else:
             rep = convert.convert_mines(args.dat, args.out_bag, storage=args.storage)
         print(rep.summary())

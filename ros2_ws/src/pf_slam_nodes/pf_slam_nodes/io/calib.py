@@ -215,7 +215,7 @@ def parse_lidar_params(path: str | os.PathLike) -> dict:
 
 
 def parse_stereo_baseline(path: str | os.PathLike) -> float:
-    """Read ``stereo_param.txt``: the baseline in metres (the file gives mm; ``(m)`` is honoured)."""
+    """Read ``stereo_param.txt``: the baseline in metres (the file says mm; a unit is honoured)."""
     kv = _key_values(path)
     key = next((k for k in kv if 'baseline' in k), None)
     if key is None:

@@ -32,7 +32,8 @@ Topics written (frames in parentheses)
   ``sensor_msgs/CameraInfo`` from the YAMLs at each image stamp.
 * ``/tf_static`` ``tf2_msgs/TFMessage``, one message at the first record time:
   ``base_link -> lidar | fog | stereo_left`` = ``(R, T)`` of ``Vehicle2*.txt`` (R maps sensor
-  vectors into the vehicle frame), ``base_link -> stereo_right`` = ``stereo_left`` moved by the
+  vectors into the vehicle frame; the nearest exact rotation to the file's rounded R is used),
+  ``base_link -> stereo_right`` = ``stereo_left`` moved by the
   baseline along the left camera's x axis (same rotation).
 
 Time
@@ -58,6 +59,7 @@ import heapq
 import itertools
 import math
 import os
+import sys
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from decimal import Decimal, InvalidOperation
@@ -170,7 +172,8 @@ def read_kaist_layout(dataset_dir: str | os.PathLike) -> KaistLayout:
 def _fog_batch_msg_file() -> Path:
     name = Path('pf_slam_interfaces') / 'msg' / 'FogBatch.msg'
     here = Path(__file__).resolve()
-    candidates = [here.parents[3] / name]  # ros2_ws/src/<pkg>/<pkg>/io -> ros2_ws/src
+    candidates = [here.parents[3] / name,  # ros2_ws/src/<pkg>/<pkg>/io -> ros2_ws/src
+                  Path(sys.prefix) / 'share' / name]  # pip install of the interfaces
     for prefix in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep):
         if prefix:
             candidates.append(Path(prefix) / 'share' / name)
@@ -183,9 +186,9 @@ def _fog_batch_msg_file() -> Path:
 def register_fog_batch() -> str:
     """Add ``pf_slam_interfaces/msg/FogBatch`` to ``bag.TYPESTORE`` from its ``.msg`` file.
 
-    The definition is read from the source tree (``ros2_ws/src/pf_slam_interfaces/msg``) or an
-    installed ``share/pf_slam_interfaces/msg`` on ``AMENT_PREFIX_PATH``. Its ``std_msgs/Header``
-    is the Jazzy store's. Idempotent; returns the type name.
+    The definition is read from the source tree (``ros2_ws/src/pf_slam_interfaces/msg``), else
+    ``share/pf_slam_interfaces/msg`` under ``sys.prefix`` or an ``AMENT_PREFIX_PATH`` entry.
+    Its ``std_msgs/Header`` is the Jazzy store's. Idempotent; returns the type name.
     """
     if FOG_BATCH_TYPE not in TYPESTORE.types:
         from rosbags.typesys import get_types_from_msg
@@ -244,7 +247,9 @@ def _parse_stamp(tok: str) -> int:
         d = Decimal(tok)
     except InvalidOperation:
         raise ValueError('non-numeric timestamp') from None
-    if not d.is_finite() or d != d.to_integral_value():
+    if not d.is_finite():
+        raise ValueError('NaN or inf timestamp')
+    if d != d.to_integral_value():
         raise ValueError('timestamp not an integer number of ns')
     return int(d)
 
@@ -297,10 +302,13 @@ class _Rows:
                     continue
                 try:
                     stamp = _parse_stamp(tok[0])
-                    vals = np.array(tok[1:], dtype=np.float64)
                 except ValueError as exc:
-                    reason = str(exc) if 'timestamp' in str(exc) else 'non-numeric value'
-                    self._bad(line_no, reason)
+                    self._bad(line_no, str(exc))
+                    continue
+                try:
+                    vals = np.array(tok[1:], dtype=np.float64)
+                except ValueError:
+                    self._bad(line_no, 'non-numeric value')
                     continue
                 if not np.all(np.isfinite(vals)):
                     self._bad(line_no, 'NaN or inf value')
