@@ -61,6 +61,10 @@ def build_parser() -> argparse.ArgumentParser:
     from .sim.indoor import add_arguments
     add_arguments(si)
 
+    sc = sub.add_parser("simulate", help="write a seeded KAIST-layout car dataset with ground truth")
+    from .sim.car import add_arguments as add_car_arguments
+    add_car_arguments(sc)
+
     b = sub.add_parser("bench", help="benchmarks: ParticleArray layout; the graph on the CARMEN logs")
     b.add_argument("what", choices=["messages", "carmen"])
     b.add_argument("--data", default="../shared/data", help="datasets folder (carmen/ inside)")
@@ -109,6 +113,9 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "simulate-indoor":
         from .sim.indoor import run_args
         return run_args(args)
+    if args.command == "simulate":
+        from .sim.car import run_args as run_car
+        return run_car(args)
     if args.command == "bench":
         if args.what == "messages":
             from .bench import messages

@@ -71,6 +71,8 @@ def _read_table(path: str | os.PathLike, allowed: tuple[int, ...]) -> np.ndarray
             s = line.strip()
             if not s or s.startswith('#'):
                 continue
+            if line_no == 1 and s[0].isalpha():  # a CSV header row (the car simulator's poses.csv)
+                continue
             tok = s.replace(',', ' ').split()
             if len(tok) not in allowed:
                 raise ValueError(f'{name}:{line_no}: expected {" or ".join(map(str, allowed))} '
@@ -94,6 +96,9 @@ def _read_table(path: str | os.PathLike, allowed: tuple[int, ...]) -> np.ndarray
 def read_trajectory(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Read a TUM (8 columns) or ``timestamp x y theta`` (4 columns) trajectory.
 
+    Commas work as separators and a first line starting with a letter is a header (the car
+    simulator's ``ground_truth/poses.csv``); stamps above 1e14 are taken as nanoseconds.
+
     Returns
     -------
     stamps : np.ndarray
@@ -102,6 +107,8 @@ def read_trajectory(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
         ``(K, 3)`` ``[x, y, theta]``; theta from the quaternion's yaw for TUM files.
     """
     a = _read_table(path, (8, 4))
+    if a.size and np.abs(a[:, 0]).max() > 1e14:  # integer nanoseconds (KAIST layout) -> seconds
+        a[:, 0] /= 1e9
     if a.shape[1] == 4:
         return a[:, 0].copy(), a[:, 1:4].copy()
     yaw = quat_to_yaw(a[:, 4], a[:, 5], a[:, 6], a[:, 7])

@@ -13,7 +13,8 @@ import numpy as np
 
 __all__ = ['PARAM_FILES', 'extrinsic', 'yaml_matrix']
 
-#: ``{file name: exact text}`` of ``DIR/param/`` (``stereo_param.txt`` ends with CRLF, as the original).
+#: ``{file name: exact text}`` of ``DIR/param/`` (``stereo_param.txt`` ends with CRLF, as
+#: the original).
 PARAM_FILES: dict[str, str] = {
     'EncoderParameter.txt': (
         'Encoder calibrated parameter\n'
@@ -26,25 +27,25 @@ PARAM_FILES: dict[str, str] = {
     ),
     'Vehicle2FOG.txt': (
         'FOG (Fiber Optic Gyro) extrinsic calibration parameter from vehicle\n'
-        'RPY(roll/pitch/yaw = XYZ extrinsic, degree), R(rotation matrix), T(translation matrix, meter)\n'
+        'RPY(roll/pitch/yaw = XYZ extrinsic, degree), R(rotation matrix), T(translation matrix, meter)\n'  # noqa: E501
         'RPY: 0 0 0\n'
         'R: 1 0 0 0 1 0 0 0 1 \n'
         'T: -0.335 -0.035 0.78\n'
         '\n'
-        '* The sensor measurements are stored as [timestamp, delta roll, delta pitch, delta yaw] in radians.\n'
+        '* The sensor measurements are stored as [timestamp, delta roll, delta pitch, delta yaw] in radians.\n'  # noqa: E501
     ),
     'Vehicle2Lidar.txt': (
         'Lidar sensor (LMS511) extrinsic calibration parameter from vehicle\n'
         'RPY(roll/pitch/yaw = XYZ extrinsic, degree), R(rotation matrix), T(translation matrix)\n'
         'RPY: 142.759 0.0584636 89.9254\n'
-        'R: 0.00130201 0.796097 0.605167 0.999999 -0.000419027 -0.00160026 -0.00102038 0.605169 -0.796097 \n'
+        'R: 0.00130201 0.796097 0.605167 0.999999 -0.000419027 -0.00160026 -0.00102038 0.605169 -0.796097 \n'  # noqa: E501
         'T: 0.8349 -0.0126869 1.76416\n'
     ),
     'Vehicle2Stereo.txt': (
         'Stereo camera (based on left camera) extrinsic calibration parameter from vehicle\n'
         'RPY(roll/pitch/yaw = XYZ extrinsic, degree), R(rotation matrix), T(translation matrix)\n'
         'RPY: -90.878 0.0132 -90.3899\n'
-        'R: -0.00680499 -0.0153215 0.99985 -0.999977 0.000334627 -0.00680066 -0.000230383 -0.999883 -0.0153234 \n'
+        'R: -0.00680499 -0.0153215 0.99985 -0.999977 0.000334627 -0.00680066 -0.000230383 -0.999883 -0.0153234 \n'  # noqa: E501
         'T: 1.64239 0.247401 1.58411\n'
         '\n'
     ),

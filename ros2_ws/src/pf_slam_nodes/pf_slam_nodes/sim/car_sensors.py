@@ -30,7 +30,9 @@ LIDAR_START_DEG, LIDAR_STEP_DEG, LIDAR_MAX_M = -5.0, 0.666, 80.0
 LIDAR_ANGLES_RAD = np.deg2rad(LIDAR_START_DEG + LIDAR_STEP_DEG * np.arange(N_LIDAR_BEAMS))
 P_LEFT = yaml_matrix('left_camera.yaml', 'projection_matrix')
 P_RIGHT = yaml_matrix('right_camera.yaml', 'projection_matrix')
-STEREO_BASELINE_M = float(PARAM_FILES['stereo_param.txt'].split(':')[1].split()[0]) / 1000.0
+#: Baseline of the rectified pair, ``-P_right[0, 3] / f`` (0.4751492 m; ``stereo_param.txt``
+#: says 0.4751436 m): the images are rendered so that ``disparity = f * STEREO_BASELINE_M / Z``.
+STEREO_BASELINE_M = float(-P_RIGHT[0, 3] / P_RIGHT[0, 0])
 IMAGE_W, IMAGE_H = 1280, 560
 _ENC = {k.strip(): float(v) for k, v in (ln.split(':') for ln in
         PARAM_FILES['EncoderParameter.txt'].splitlines() if ':' in ln and 'stored' not in ln)}
@@ -68,27 +70,51 @@ def ray_boxes(origins: np.ndarray, dirs: np.ndarray, boxes: np.ndarray,
     t : ``(N,)`` ray parameter of the entry point (``inf`` = no hit in front of the origin);
     index : ``(N,)`` int box index (-1 = none); axis : ``(N,)`` int8 axis of the entered face.
     """
-    o = np.asarray(origins).reshape(-1, 1, 3)
-    d = np.asarray(dirs).reshape(-1, 1, 3)
-    n = max(o.shape[0], d.shape[0])
+    o = np.asarray(origins)
+    d = np.asarray(dirs).reshape(-1, 3)
+    o = np.broadcast_to(o.reshape(-1, 3), d.shape) if o.ndim == 1 else o.reshape(-1, 3)
+    n = len(d)
     if len(boxes) == 0:
         return np.full(n, np.inf), np.full(n, -1), np.zeros(n, np.int8)
+    tn = tf = axis = None
     with np.errstate(divide='ignore', invalid='ignore'):
-        inv = 1.0 / d
-        t1 = (boxes[None, :, :3] - o) * inv
-        t2 = (boxes[None, :, 3:] - o) * inv
-    near = np.fmin(t1, t2)                       # (N, M, 3); nan (0 * inf) -> other value
-    far = np.fmax(t1, t2)
-    axis = near.argmax(axis=-1)
-    tn = near.max(axis=-1)
-    tf = far.min(axis=-1)
-    ok = (tf >= tn) & (tn > 1e-6)
-    tn = np.where(ok, tn, np.inf)
+        for k in range(3):
+            inv = 1.0 / d[:, k:k + 1]
+            t1 = (boxes[None, :, k] - o[:, k:k + 1]) * inv            # (N, M)
+            t2 = (boxes[None, :, k + 3] - o[:, k:k + 1]) * inv
+            lo_k, hi_k = np.fmin(t1, t2), np.fmax(t1, t2)
+            if tn is None:
+                tn, tf, axis = lo_k, hi_k, np.zeros(lo_k.shape, np.int8)
+            else:
+                axis = np.where(lo_k > tn, np.int8(k), axis)
+                tn, tf = np.fmax(tn, lo_k), np.fmin(tf, hi_k)
+    tn = np.where((tf >= tn) & (tn > 1e-6), tn, np.inf)
     idx = tn.argmin(axis=1)
-    t = np.take_along_axis(tn, idx[:, None], axis=1)[:, 0]
-    ax = np.take_along_axis(axis, idx[:, None], axis=1)[:, 0].astype(np.int8)
+    rows = np.arange(n)
+    t = tn[rows, idx]
+    ax = axis[rows, idx]
     idx = np.where(np.isfinite(t), idx, -1)
     return t, idx, ax
+
+
+def _ray_box_image(o: np.ndarray, inv: np.ndarray, box: np.ndarray,
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """One box against a block of pixel rays: ``inv`` ``(h, w, 3)`` = 1 / direction.
+
+    Returns the entry ``t`` (``inf`` = miss) and the axis of the entered face, ``(h, w)``.
+    """
+    tn = tf = axis = None
+    with np.errstate(invalid='ignore'):
+        for k in range(3):
+            t1 = (box[k] - o[k]) * inv[..., k]
+            t2 = (box[k + 3] - o[k]) * inv[..., k]
+            lo_k, hi_k = np.fmin(t1, t2), np.fmax(t1, t2)
+            if tn is None:
+                tn, tf, axis = lo_k, hi_k, np.zeros(lo_k.shape, np.int8)
+            else:
+                axis[lo_k > tn] = k
+                tn, tf = np.fmax(tn, lo_k), np.fmin(tf, hi_k)
+    return np.where((tf >= tn) & (tn > 1e-4), tn, np.inf), axis
 
 
 # ---- lidar ---------------------------------------------------------------------------------
@@ -171,6 +197,8 @@ def camera_pose(pose: np.ndarray, right: bool = False) -> tuple[np.ndarray, np.n
     return r_wc, c
 
 
+#: The 12 edges of a box as pairs of corner indices (corner = 4 ix + 2 iy + iz).
+_EDGES = np.array([(i, i | bit) for i in range(8) for bit in (4, 2, 1) if not i & bit])
 _PIX_DIRS: np.ndarray | None = None
 
 
@@ -185,39 +213,44 @@ def _pixel_dirs() -> np.ndarray:
     return _PIX_DIRS
 
 
-_NOISE_TILE: np.ndarray | None = None
+def _hash_noise(a: np.ndarray, b: np.ndarray, cell_m: float) -> np.ndarray:
+    """Value noise (unit sigma, bilinear between hashed lattice values) at surface coordinates
+    ``a``, ``b`` (m) with lattice spacing ``cell_m``: deterministic and not periodic."""
+    x = np.asarray(a, dtype=np.float64) / cell_m
+    y = np.asarray(b, dtype=np.float64) / cell_m
+    x0, y0 = np.floor(x), np.floor(y)
+    fx, fy = (x - x0).astype(np.float32), (y - y0).astype(np.float32)
+    i, j = x0.astype(np.int64), y0.astype(np.int64)
+
+    def h(ii: np.ndarray, jj: np.ndarray) -> np.ndarray:
+        v = (ii * 374761393 + jj * 668265263) & 0xFFFFFFFF
+        v = ((v ^ (v >> 13)) * 1274126177) & 0xFFFFFFFF
+        v ^= v >> 16
+        return ((v & 0xFFFF).astype(np.float32) / 65535.0 - 0.5) * 3.4641016
+
+    top = h(i, j) * (1 - fx) + h(i + 1, j) * fx
+    bot = h(i, j + 1) * (1 - fx) + h(i + 1, j + 1) * fx
+    return top * (1 - fy) + bot * fy
 
 
-def _noise_tile() -> np.ndarray:
-    """A fixed 256 x 256 float32 noise tile (unit sigma) used for surface detail."""
-    global _NOISE_TILE
-    if _NOISE_TILE is None:
-        _NOISE_TILE = np.random.default_rng(12345).standard_normal((256, 256)).astype(np.float32)
-    return _NOISE_TILE
-
-
-def _tile_lookup(a: np.ndarray, b: np.ndarray, scale_m: float) -> np.ndarray:
-    """Bilinear lookup of the periodic noise tile at surface coordinates ``a``, ``b`` (m)."""
-    mx = (a / scale_m).astype(np.float32).reshape(-1, 1)
-    my = (b / scale_m).astype(np.float32).reshape(-1, 1)
-    mx = np.mod(mx, 256.0)
-    my = np.mod(my, 256.0)
-    return cv2.remap(_noise_tile(), mx, my, cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_WRAP).reshape(a.shape)
-
-
-GRAIN_AMPLITUDE = 4.0
+#: Procedural ground detail not stored in the floor texture: ``(cell m, sigma)`` layers.
+GRAIN_LAYERS = ((0.1, 5.0), (0.03, 4.0))
 SKY_TOP, SKY_HORIZON = np.array([95.0, 140.0, 205.0]), np.array([215.0, 225.0, 235.0])
 
 
 def render_rgb(pose: np.ndarray, world: CarWorld, right: bool = False,
-               render_range_m: float = 250.0) -> np.ndarray:
+               render_range_m: float = 250.0, grain: bool = True,
+               depth: np.ndarray | None = None) -> np.ndarray:
     """Ray-cast one rectified camera image at vehicle pose ``pose``.
 
-    Per pixel: the ground plane (floor texture, bilinear, plus a fine grain of amplitude
-    ``GRAIN_AMPLITUDE`` not stored in the texture), the boxes (facades with windows, cars
-    with a dark glass band, poles, trees; flat shading per face) and the sky above.
+    Per pixel: the ground plane (floor texture, bilinear, plus the ``GRAIN_LAYERS`` of
+    procedural detail not stored in the texture unless ``grain`` is False), the boxes
+    (facades with windows, cars with a dark glass band, poles, trees; flat shading per face)
+    and the sky above.
     Vectorised over pixels; boxes are tested only inside their projected bounding rectangle.
+
+    If ``depth`` (``(560, 1280)`` float) is given it receives the camera-z depth of every
+    pixel (m; ``inf`` = sky).
 
     Returns
     -------
@@ -230,6 +263,7 @@ def render_rgb(pose: np.ndarray, world: CarWorld, right: bool = False,
     cz = np.float32(c[2])
     with np.errstate(divide='ignore'):
         zbuf = np.where(dw[..., 2] < 0, -cz / dw[..., 2], np.inf).astype(np.float32)
+        inv = 1.0 / dw
     ident = np.full((IMAGE_H, IMAGE_W), -1, dtype=np.int32)          # -1 ground / sky
     axis = np.zeros((IMAGE_H, IMAGE_W), dtype=np.int8)
     # candidate boxes: project the corners
@@ -241,32 +275,37 @@ def render_rgb(pose: np.ndarray, world: CarWorld, right: bool = False,
     dist = np.hypot(np.clip(c[0], b[:, 0], b[:, 3]) - c[0], np.clip(c[1], b[:, 1], b[:, 4]) - c[1])
     f, cx, cy = P_LEFT[0, 0], P_LEFT[0, 2], P_LEFT[1, 2]
     cf = c.astype(np.float32)
-    for m in np.flatnonzero((zc.max(1) > 0.05) & (dist < render_range_m)):
-        if zc[m].min() > 0.05:
-            u = f * cam[m, :, 0] / zc[m] + cx
-            v = f * cam[m, :, 1] / zc[m] + cy
-            u0, u1 = max(int(u.min()), 0), min(int(u.max()) + 2, IMAGE_W)
-            v0, v1 = max(int(v.min()), 0), min(int(v.max()) + 2, IMAGE_H)
-            if u0 >= u1 or v0 >= v1:
-                continue
-        else:
-            u0, u1, v0, v1 = 0, IMAGE_W, 0, IMAGE_H
-        sub = dw[v0:v1, u0:u1]
-        t, _, ax = ray_boxes(cf, sub.reshape(-1, 3), b[m:m + 1].astype(np.float32))
-        t = t.reshape(sub.shape[:2])
+    near = 0.05
+    for m in np.flatnonzero((zc.max(1) > near) & (dist < render_range_m)):
+        q = cam[m]
+        if zc[m].min() <= near:                     # clip the box at the near plane
+            za, zb = q[_EDGES[:, 0], 2], q[_EDGES[:, 1], 2]
+            cut = (za - near) * (zb - near) < 0.0
+            w = ((near - za[cut]) / (zb[cut] - za[cut]))[:, None]
+            q = np.concatenate([q[q[:, 2] > near], q[_EDGES[cut, 0]] * (1 - w)
+                                + q[_EDGES[cut, 1]] * w])
+        u = f * q[:, 0] / q[:, 2] + cx
+        v = f * q[:, 1] / q[:, 2] + cy
+        u0, u1 = max(int(u.min()), 0), min(int(u.max()) + 2, IMAGE_W)
+        v0, v1 = max(int(v.min()), 0), min(int(v.max()) + 2, IMAGE_H)
+        if u0 >= u1 or v0 >= v1:
+            continue
+        t, ax = _ray_box_image(cf, inv[v0:v1, u0:u1], b[m].astype(np.float32))
         zs = zbuf[v0:v1, u0:u1]
         closer = t < zs
         zs[closer] = t[closer]
         ident[v0:v1, u0:u1][closer] = m
-        axis[v0:v1, u0:u1][closer] = ax.reshape(sub.shape[:2])[closer]
+        axis[v0:v1, u0:u1][closer] = ax[closer]
     hit = np.isfinite(zbuf)
+    if depth is not None:
+        depth[...] = zbuf
     p = cf + dw * np.where(hit, zbuf, 0.0)[..., None]                # hit points (world)
     img = np.empty((IMAGE_H, IMAGE_W, 3), dtype=np.float32)
     # sky
-    elev = -dw[..., 2] / np.linalg.norm(dw, axis=-1)                 # world z is up
-    w_sky = np.clip(-elev / 0.5, 0.0, 1.0)[..., None]
     sky = ~hit
-    img[sky] = (SKY_HORIZON * (1 - w_sky) + SKY_TOP * w_sky)[sky]
+    ds = dw[sky]
+    w_sky = np.clip(ds[:, 2] / np.linalg.norm(ds, axis=-1) / 0.5, 0.0, 1.0)[:, None]
+    img[sky] = SKY_HORIZON * (1 - w_sky) + SKY_TOP * w_sky
     # ground
     gnd = hit & (ident < 0)
     if gnd.any():
@@ -275,8 +314,10 @@ def render_rgb(pose: np.ndarray, world: CarWorld, right: bool = False,
         my = ((p[..., 1] - org[1]) / res - 0.5).astype(np.float32)
         tex = cv2.remap(world.texture, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                         borderValue=(90, 95, 75)).astype(np.float32)
-        grain = _tile_lookup(p[..., 0][gnd], p[..., 1][gnd], 0.02)
-        img[gnd] = tex[gnd] + GRAIN_AMPLITUDE * grain[:, None]
+        img[gnd] = tex[gnd]
+        if grain:
+            gx, gy = p[..., 0][gnd], p[..., 1][gnd]
+            img[gnd] += sum(sig * _hash_noise(gx, gy, cell) for cell, sig in GRAIN_LAYERS)[:, None]
     # boxes
     obj = hit & (ident >= 0)
     if obj.any():
@@ -299,7 +340,7 @@ def render_rgb(pose: np.ndarray, world: CarWorld, right: bool = False,
         base[glass] *= 0.3
         shade = np.where(ax == 0, 0.85, np.where(ax == 1, 0.7, 1.0)).astype(np.float32)
         amp = np.where(kinds == KIND_CROWN, 30.0, np.where(bld, 10.0, 4.0)).astype(np.float32)
-        detail = _tile_lookup(along, z, 0.05)
+        detail = _hash_noise(along, z, 0.08)
         img[obj] = base * shade[:, None] + (amp * detail)[:, None]
     return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 

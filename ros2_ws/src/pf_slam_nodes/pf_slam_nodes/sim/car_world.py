@@ -25,7 +25,7 @@ import numpy as np
 
 __all__ = [
     'CarWorld', 'Drive', 'KIND_BUILDING', 'KIND_CAR', 'KIND_CROWN', 'KIND_POLE', 'KIND_TRUNK',
-    'build_world', 'occupancy_grid', 'plan_route', 'pose_on_path',
+    'build_world', 'occupancy_grid', 'plan_route', 'pose_on_path', 'shift_world',
 ]
 
 N_STREETS = 5
@@ -147,7 +147,8 @@ def _block_edges(s: np.ndarray, w: np.ndarray) -> list[tuple[float, float]]:
     return list(zip(lo, hi))
 
 
-def _buildings(sx, sy, wx, wy, rng) -> list[tuple]:
+def _buildings(sx: np.ndarray, sy: np.ndarray, wx: np.ndarray, wy: np.ndarray,
+               rng: np.random.Generator) -> list[tuple]:
     out = []
     for bx0, bx1 in _block_edges(sx, wx):
         for by0, by1 in _block_edges(sy, wy):
@@ -163,7 +164,8 @@ def _buildings(sx, sy, wx, wy, rng) -> list[tuple]:
     return out
 
 
-def _street_furniture(sx, sy, wx, wy, rng) -> list[tuple]:
+def _street_furniture(sx: np.ndarray, sy: np.ndarray, wx: np.ndarray, wy: np.ndarray,
+                      rng: np.random.Generator) -> list[tuple]:
     """Parked cars along both kerbs and poles / trees on both sidewalks of every segment."""
     out = []
     for axis, (s_along, w_along, s_line, w_line) in enumerate(((sx, wx, sy, wy),
@@ -224,7 +226,7 @@ def _axis_box(box: list[float], axis: int) -> tuple[float, ...]:
 
 
 def _paint(tex: np.ndarray, origin: np.ndarray, res: float, x0: float, y0: float, x1: float,
-           y1: float, value) -> None:
+           y1: float, value: int) -> None:
     c0 = max(int(round((x0 - origin[0]) / res)), 0)
     c1 = min(int(round((x1 - origin[0]) / res)), tex.shape[1])
     r0 = max(int(round((y0 - origin[1]) / res)), 0)
@@ -242,7 +244,10 @@ def _noise(shape: tuple[int, int], sigma: float, cell: int, rng: np.random.Gener
     return sigma * big[:shape[0], :shape[1]]
 
 
-def _floor_texture(sx, sy, wx, wy, bounds, rng, res=TEXTURE_RES_M):
+def _floor_texture(sx: np.ndarray, sy: np.ndarray, wx: np.ndarray, wy: np.ndarray,
+                   bounds: np.ndarray, rng: np.random.Generator, res: float = TEXTURE_RES_M,
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """RGB floor texture (row 0 = lowest y) and the world position of its lower-left corner."""
     origin = np.array([bounds[0], bounds[1]])
     w = int(round((bounds[2] - bounds[0]) / res))
     h = int(round((bounds[3] - bounds[1]) / res))
@@ -261,13 +266,13 @@ def _floor_texture(sx, sy, wx, wy, bounds, rng, res=TEXTURE_RES_M):
     lw = 0.2
     for axis, (s_along, w_along, s_line, w_line) in enumerate(((sx, wx, sy, wy),
                                                                (sy, wy, sx, wx))):
-        def rect(a0, a1, b0, b1, axis=axis):
+        def rect(a0: float, a1: float, b0: float, b1: float, axis: int = axis) -> None:
             if axis == 0:
                 _paint(cls, origin, res, a0, b0, a1, b1, 3)
             else:
                 _paint(cls, origin, res, b0, a0, b1, a1, 3)
         ends = [s_along[0] - w_along[0] / 2 - SIDEWALK_M - OUTER_BLOCK_M] + \
-            list(s_along + w_along / 2) 
+            list(s_along + w_along / 2)
         starts_next = list(s_along - w_along / 2) + \
             [s_along[-1] + w_along[-1] / 2 + SIDEWALK_M + OUTER_BLOCK_M]
         for c, wd in zip(s_line, w_line):
@@ -288,7 +293,7 @@ def _floor_texture(sx, sy, wx, wy, bounds, rng, res=TEXTURE_RES_M):
                         b += 1.0
     tex = np.empty((h, w, 3), dtype=np.float32)
     tex[:] = (105.0, 112.0, 80.0)                      # ground: dusty grass
-    grain = rng.standard_normal((h, w)).astype(np.float32)
+    grain = _noise((h, w), 1.0, 4, rng)            # 0.4 m cells: compresses well in PNG
     blotch = _noise((h, w), 1.0, 20, rng)
     side = cls == 1
     road = cls == 2
@@ -308,7 +313,7 @@ def _floor_texture(sx, sy, wx, wy, bounds, rng, res=TEXTURE_RES_M):
 
 
 def build_world(rng: np.random.Generator) -> tuple[CarWorld, dict]:
-    """Seeded city world in the GRID frame (``_shift_world`` moves it to the start frame).
+    """Seeded city world in the GRID frame (``shift_world`` moves it to the start frame).
 
     Returns the world and a dict of the street layout (``sx, sy, wx, wy``) for ``plan_route``.
     """
@@ -369,7 +374,8 @@ def occupancy_grid(world: CarWorld, resolution_m: float, band_m: tuple[float, fl
 _DIRS = ((1, 0), (0, 1), (-1, 0), (0, -1))  # east, north, west, south
 
 
-def _route_nodes(n_min_m: float, layout: dict, rng: np.random.Generator):
+def _route_nodes(n_min_m: float, layout: dict, rng: np.random.Generator,
+                 ) -> list[tuple[int, int]]:
     """Start position and the list of grid nodes ``(i, j)`` to drive through."""
     n = N_STREETS
     sx, sy = layout['sx'], layout['sy']
@@ -414,19 +420,19 @@ def plan_route(duration_s: float, layout: dict, rng: np.random.Generator,
     sx, sy, wx, wy = layout['sx'], layout['sy'], layout['wx'], layout['wy']
     nodes = _route_nodes(12.0 * duration_s + 300.0, layout, rng)
 
-    def node_xy(nd):
+    def node_xy(nd: tuple[int, int]) -> np.ndarray:
         return np.array([sx[nd[0]], sy[nd[1]]])
 
-    def lane_off(a, b):
+    def lane_off(a: tuple[int, int], b: tuple[int, int]) -> float:
         # offset of the right lane from the centre line of the street a -> b
         wd = wy[a[1]] if a[1] == b[1] else wx[a[0]]
         return 0.5 * (wd / 2 - PARKING_LANE_M)
 
-    def unit(a, b):
+    def unit(a: tuple[int, int], b: tuple[int, int]) -> np.ndarray:
         d = node_xy(b) - node_xy(a)
         return d / np.linalg.norm(d)
 
-    def right(u):
+    def right(u: np.ndarray) -> np.ndarray:
         return np.array([u[1], -u[0]])
 
     u0 = unit(nodes[0], nodes[1])
