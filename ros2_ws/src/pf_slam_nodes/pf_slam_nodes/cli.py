@@ -46,7 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="one process with one executor, or one process per node over DDS")
     r.add_argument("--particles", type=int, help="number of particles (filter.num_particles)")
     r.add_argument("--seed", type=int, help="random seed (filter.seed)")
-    r.add_argument("--executor", choices=["single", "events"], default="single",
+    r.add_argument("--executor", choices=["single", "events"], default="events",
                    help="executor of the single-process graph: SingleThreadedExecutor or rclpy's "
                         "experimental C++ EventsExecutor (same result)")
     r.add_argument("--snapshot-every", type=int, default=200, help="snapshot PNG every N scans (0: none)")

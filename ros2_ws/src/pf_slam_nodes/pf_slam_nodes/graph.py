@@ -260,7 +260,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         processes: str = "single", overrides: dict[str, dict[str, Any]] | None = None,
         snapshot_every: int = 200, progress: bool = True, idle_timeout_s: float = 60.0,
         drain_timeout_s: float = 5.0,
-        domain_id: int | None = None, executor: str = "single") -> RunResult:
+        domain_id: int | None = None, executor: str = "events") -> RunResult:
     """Replay `bag` through the graph and write the outputs into `out_dir`; returns the summary."""
     import rclpy
 
