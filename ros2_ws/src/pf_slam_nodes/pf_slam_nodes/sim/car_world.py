@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .paths import pose_on_path
+
 __all__ = [
     'CarWorld', 'Drive', 'KIND_BUILDING', 'KIND_CAR', 'KIND_CROWN', 'KIND_POLE', 'KIND_TRUNK',
     'build_world', 'occupancy_grid', 'plan_route', 'pose_on_path', 'shift_world',
@@ -99,25 +101,6 @@ class Drive:
     def poses_at(self, t_s: np.ndarray) -> np.ndarray:
         """``(N, 3)`` true poses ``[x, y, theta]`` at ``t_s``, theta unwrapped."""
         return pose_on_path(self.pieces, self.s_at(np.asarray(t_s, dtype=np.float64)))
-
-
-def pose_on_path(pieces: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """Poses ``(N, 3)`` (theta unwrapped) at arc lengths ``s`` along an open piece path."""
-    s = np.atleast_1d(np.asarray(s, dtype=np.float64))
-    s0 = np.concatenate([[0.0], np.cumsum(pieces[:, 4])[:-1]])
-    i = np.clip(np.searchsorted(s0, s, side='right') - 1, 0, len(pieces) - 1)
-    x0, y0, th0, kappa = (pieces[i, j] for j in range(4))
-    ds = s - s0[i]
-    th = th0 + kappa * ds
-    straight = kappa == 0.0
-    k = np.where(straight, 1.0, kappa)
-    x = np.where(straight, x0 + ds * np.cos(th0), x0 + (np.sin(th) - np.sin(th0)) / k)
-    y = np.where(straight, y0 + ds * np.sin(th0), y0 - (np.cos(th) - np.cos(th0)) / k)
-    return np.stack([x, y, th], axis=1)
-
-
-# --------------------------------------------------------------------------------------------
-# world
 
 
 def _intervals(lo: float, hi: float, n: int, min_len: float,

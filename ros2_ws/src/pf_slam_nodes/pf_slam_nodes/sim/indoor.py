@@ -39,6 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .paths import pose_on_path
+
 from pf_slam_nodes.io.bag import BagError, laser_scan, odometry, open_writer, tf_static
 from pf_slam_nodes.io.mapfile import write_map
 from pf_slam_nodes.io.trajectory import write_tum
@@ -338,18 +340,9 @@ def _loop_primitives(corners: np.ndarray, radii: np.ndarray,
 
 def _pose_on_path(pieces: np.ndarray, s: np.ndarray) -> np.ndarray:
     """Poses ``(N, 3)`` at arc lengths ``s`` (wrapped around the closed path)."""
-    length = pieces[:, 4].sum()
-    s0 = np.concatenate([[0.0], np.cumsum(pieces[:, 4])[:-1]])
-    sw = np.mod(s, length)
-    i = np.clip(np.searchsorted(s0, sw, side='right') - 1, 0, len(pieces) - 1)
-    x0, y0, th0, kappa = (pieces[i, j] for j in range(4))
-    ds = sw - s0[i]
-    th = th0 + kappa * ds
-    straight = kappa == 0.0
-    k = np.where(straight, 1.0, kappa)
-    x = np.where(straight, x0 + ds * np.cos(th0), x0 + (np.sin(th) - np.sin(th0)) / k)
-    y = np.where(straight, y0 + ds * np.sin(th0), y0 - (np.cos(th) - np.cos(th0)) / k)
-    return np.stack([x, y, np.arctan2(np.sin(th), np.cos(th))], axis=1)
+    p = pose_on_path(pieces, np.mod(s, pieces[:, 4].sum()))
+    p[:, 2] = np.arctan2(np.sin(p[:, 2]), np.cos(p[:, 2]))
+    return p
 
 
 def plan_drive(duration_s: float, rng: np.random.Generator,
