@@ -254,6 +254,20 @@ class CorrelationConfig(_ConfigBase):
     refine_residual : str
         ``'likelihood'``: residual ``1 - exp(-d^2 / (2 sigma^2))`` (smooth, default);
         ``'distance'``: residual ``d``.
+    skip_unknown : bool
+        Drop the scan points that fall on never-observed map cells (occupancy -1) at the
+        highest-weighted predicted particle before matching. Such points carry no information,
+        but they score better once shifted onto the known end of a wall, which makes the matches
+        slide back along corridors and streets while the sensor keeps seeing new wall ahead
+        (the car's tilted lidar). Default False (the CARMEN settings).
+    prior_sigma_xy_m, prior_sigma_yaw_rad : float
+        Motion prior of the match: a candidate shifted by ``(dx, dy, dyaw)`` from the particle's
+        predicted pose scores ``log_score - (dx^2 + dy^2) / (2 prior_sigma_xy_m^2) - dyaw^2 /
+        (2 prior_sigma_yaw_rad^2)`` in the window search, and after the refinement the particle
+        keeps the better (by that penalised score) of its refined and its predicted pose; the
+        penalised score is its weight update. So a shift must buy its cost in scan likelihood,
+        and weakly observable shifts (along a street) stay at the odometry. 0 disables the term
+        of that axis; both 0 (default): no prior, the CARMEN behaviour.
     """
 
     search_x_m: float = 0.2
@@ -270,8 +284,15 @@ class CorrelationConfig(_ConfigBase):
     temperature: float = 20.0
     refine_iterations: int = 30
     refine_residual: str = "likelihood"
+    skip_unknown: bool = False
+    prior_sigma_xy_m: float = 0.0
+    prior_sigma_yaw_rad: float = 0.0
 
     def __post_init__(self) -> None:
+        if not isinstance(self.skip_unknown, bool):
+            raise ValueError(f"skip_unknown must be a bool, got {self.skip_unknown!r}")
+        _check_nonneg("prior_sigma_xy_m", self.prior_sigma_xy_m)
+        _check_nonneg("prior_sigma_yaw_rad", self.prior_sigma_yaw_rad)
         _check_nonneg("search_x_m", self.search_x_m)
         _check_nonneg("search_y_m", self.search_y_m)
         _check_nonneg("search_yaw_rad", self.search_yaw_rad)

@@ -379,6 +379,7 @@ def window_search(
     # int32 indices halve the memory traffic of the (n, J, S, M) gather where the table allows
     idx_t = np.int32 if field._loglik_flat.size < 2**31 - 1 else np.int64
     offs = (sy[:, None] * field._wp + sx[None, :]).reshape(-1).astype(idx_t)  # (S,) row-major (dy, dx)
+    penalty = _prior_penalty(sx * res, sy * res, yaws, cfg)  # (J, S) or None
     n_yaw, n_shift, m = yaws.size, offs.size, pts.shape[0]
     best_poses = np.empty_like(poses)
     best_scores = np.empty(n)
@@ -394,6 +395,8 @@ def window_search(
         cx, cy = field._cells(np.stack([wx, wy], axis=-1), max_shift)
         base = (cy * field._wp + cx).astype(idx_t)
         sc_all = table[base[:, :, None, :] + offs[None, None, :, None]].sum(axis=-1, dtype=np.float64)
+        if penalty is not None:
+            sc_all -= penalty[None]
         flat = sc_all.reshape(p.shape[0], -1)
         k = np.argmax(flat, axis=1)
         j, sidx = np.divmod(k, n_shift)
@@ -404,6 +407,32 @@ def window_search(
         best_scores[i0:i0 + chunk] = flat[np.arange(p.shape[0]), k]
     best_poses[:, 2] = (best_poses[:, 2] + np.pi) % (2 * np.pi) - np.pi
     return best_poses, best_scores
+
+
+def _prior_penalty(dx: np.ndarray, dy: np.ndarray, dyaw: np.ndarray, cfg: CorrelationConfig):
+    """``(J, S)`` motion-prior cost of the window candidates (``S`` = dy-major (dy, dx) grid), or
+    None when ``cfg`` has no prior."""
+    if not (cfg.prior_sigma_xy_m > 0 or cfg.prior_sigma_yaw_rad > 0):
+        return None
+    t = np.zeros((dy.size, dx.size))
+    if cfg.prior_sigma_xy_m > 0:
+        t = (dy[:, None] ** 2 + dx[None, :] ** 2) * (0.5 / cfg.prior_sigma_xy_m ** 2)
+    r = np.zeros(dyaw.size)
+    if cfg.prior_sigma_yaw_rad > 0:
+        r = dyaw ** 2 * (0.5 / cfg.prior_sigma_yaw_rad ** 2)
+    return r[:, None] + t.reshape(1, -1)
+
+
+def _prior_cost(poses: np.ndarray, predicted: np.ndarray, cfg: CorrelationConfig) -> np.ndarray:
+    """``(N,)`` motion-prior cost of ``poses`` relative to ``predicted`` (0 without a prior)."""
+    c = np.zeros(poses.shape[0])
+    if cfg.prior_sigma_xy_m > 0:
+        c += ((poses[:, 0] - predicted[:, 0]) ** 2 + (poses[:, 1] - predicted[:, 1]) ** 2) * (
+            0.5 / cfg.prior_sigma_xy_m ** 2)
+    if cfg.prior_sigma_yaw_rad > 0:
+        dth = (poses[:, 2] - predicted[:, 2] + np.pi) % (2 * np.pi) - np.pi
+        c += dth ** 2 * (0.5 / cfg.prior_sigma_yaw_rad ** 2)
+    return c
 
 
 def _cost(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField, residual: str = "likelihood"):
@@ -550,4 +579,12 @@ def correlate(
     best, _ = window_search(poses, search_pts, field, cfg)
     best, _ = refine(best, refine_pts, field, cfg.refine_iterations, cfg.refine_residual)
     d, _ = field.distance_bilinear(transform_points_batch(refine_pts, best))
-    return best, -0.5 * (d * d).sum(axis=1) / (cfg.sigma_m ** 2)
+    score = -0.5 * (d * d).sum(axis=1) / (cfg.sigma_m ** 2)
+    if cfg.prior_sigma_xy_m > 0 or cfg.prior_sigma_yaw_rad > 0:
+        score -= _prior_cost(best, poses, cfg)
+        d0, _ = field.distance_bilinear(transform_points_batch(refine_pts, poses))
+        score0 = -0.5 * (d0 * d0).sum(axis=1) / (cfg.sigma_m ** 2)
+        stay = score0 >= score
+        best[stay] = poses[stay]
+        score = np.where(stay, score0, score)
+    return best, score

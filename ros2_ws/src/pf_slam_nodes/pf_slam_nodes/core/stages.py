@@ -103,6 +103,7 @@ class CorrectionStage:
         self.resample_cfg = resample_cfg
         self.rng = np.random.default_rng([filter_cfg.seed, RESAMPLE_STREAM])
         self.field: Optional[GridLikelihoodField] = None
+        self.known: Optional[np.ndarray] = None  # (H, W) bool observed cells (skip_unknown only)
         self.pose = np.zeros(3)
         self.num_corrections = 0
         self.num_resamples = 0
@@ -116,6 +117,8 @@ class CorrectionStage:
         if self.field is None:
             h, w, origin = grid_geometry(self.grid_cfg, self.pose[:2])
             self.field = GridLikelihoodField(h, w, float(self.grid_cfg.resolution_m), origin, self.corr_cfg)
+            if self.corr_cfg.skip_unknown:
+                self.known = np.zeros((h, w), dtype=bool)
         f = self.field
         occ = np.asarray(patch.occupancy)
         c0, r0 = np.rint((np.asarray(patch.origin, float) - f.origin) / f.resolution).astype(np.int64)
@@ -125,8 +128,20 @@ class CorrectionStage:
         if not rk.any() or not ck.any():
             return 0
         flat = (rows[rk][:, None] * f.width + cols[ck][None, :]).reshape(-1)
-        obstacle = (occ[np.ix_(rk, ck)] >= self.corr_cfg.occupied_threshold).reshape(-1)
+        sub = occ[np.ix_(rk, ck)]
+        if self.known is not None:
+            self.known.reshape(-1)[flat] = (sub >= 0).reshape(-1)
+        obstacle = (sub >= self.corr_cfg.occupied_threshold).reshape(-1)
         return f.set_obstacles(flat, obstacle)
+
+    def _observed(self, pts: np.ndarray, pose: np.ndarray) -> np.ndarray:
+        """``(M,)`` bool: robot-frame points that land on an observed map cell at ``pose``."""
+        f = self.field
+        cells = np.floor((transform_points(pts, pose) - f.origin) / f.resolution).astype(np.int64)
+        ok = (cells[:, 0] >= 0) & (cells[:, 0] < f.width) & (cells[:, 1] >= 0) & (cells[:, 1] < f.height)
+        keep = np.zeros(pts.shape[0], dtype=bool)
+        keep[ok] = self.known[cells[ok, 1], cells[ok, 0]]
+        return keep
 
     def correct(self, particles: np.ndarray, log_weights: np.ndarray, ranges: np.ndarray,
                 angles: np.ndarray, range_min: float = 0.0, range_max: float = math.inf) -> Correction:
@@ -137,6 +152,8 @@ class CorrectionStage:
         pts = scan_to_points(ranges, angles, max(range_min, 1e-6), min(range_max, self.corr_cfg.range_max_m))
         if np.any(offset):
             pts = transform_points(pts, offset)
+        if self.known is not None and pts.shape[0] > 0:
+            pts = pts[self._observed(pts, particles[int(np.argmax(log_w))])]
         matched = self.field is not None and pts.shape[0] > 0
         if matched:
             particles, scores = correlate(particles, pts, self.field, self.corr_cfg)
