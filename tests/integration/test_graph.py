@@ -146,7 +146,7 @@ def test_graph_equals_reference_loop(sample_run):
     from pf_slam_nodes.core import config as cfg
     from pf_slam_nodes.core.odometry import OdometryBuffer
     from pf_slam_nodes.core.slam import ParticleFilterSlam
-    from pf_slam_nodes.io.bag import deserialize, read_bag
+    from pf_slam_nodes.io.bag import deserialize, read_bag, stamp_ns_of
     from pf_slam_nodes.io.trajectory import quat_to_yaw
 
     out, _ = sample_run
@@ -158,11 +158,11 @@ def test_graph_equals_reference_loop(sample_run):
         m = deserialize(raw, msgtype)
         if topic == "/odom":
             q = m.pose.pose.orientation
-            odom.add(m.header.stamp.sec * 10**9 + m.header.stamp.nanosec,
+            odom.add(stamp_ns_of(m),
                      np.array([m.pose.pose.position.x, m.pose.pose.position.y,
                                quat_to_yaw(q.x, q.y, q.z, q.w)]))
         elif topic == "/scan":
-            stamp = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+            stamp = stamp_ns_of(m)
             o = odom.lookup(stamp, final=True)
             ang = m.angle_min + m.angle_increment * np.arange(len(m.ranges))
             poses.append(slam.process_odometry_scan(stamp / 1e9, o, np.asarray(m.ranges, float), ang,

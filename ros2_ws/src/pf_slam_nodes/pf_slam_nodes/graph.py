@@ -21,7 +21,7 @@ from typing import Any, Callable
 import numpy as np
 import yaml
 
-from .io.bag import bag_info, deserialize, read_bag
+from .io.bag import bag_info, deserialize, read_bag, stamp_ns_of
 from .io.mapfile import render_snapshot, write_map
 from .io.trajectory import write_tum
 
@@ -103,7 +103,7 @@ def detect_inputs(bag: str, info: dict) -> dict[str, dict[str, Any]]:
     scan_stamps, odom_stamps, scan_frame = [], set(), None
     for t, msgtype, _, raw in read_bag(bag, topics=["/scan", topic]):
         msg = deserialize(raw, msgtype)
-        ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        ns = stamp_ns_of(msg)
         if t == "/scan":
             scan_stamps.append(ns)
             scan_frame = msg.header.frame_id
@@ -306,8 +306,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         def finished() -> bool:
             m = rec.map_msg
             if len(rec.poses) >= scans_total:
-                return m is not None and (m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
-                                          == rec.stamps[-1])
+                return m is not None and stamp_ns_of(m) == rec.stamps[-1]
             # paced replays (--rate N) may lose scans under load: once the bag is out and the
             # pipeline has been idle for drain_timeout_s, finish and report them as dropped
             return (rec.replay_counts is not None and m is not None

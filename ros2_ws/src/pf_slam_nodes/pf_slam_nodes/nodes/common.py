@@ -26,6 +26,13 @@ CONFIG_SECTIONS: dict[str, type] = {
 }
 
 
+def _as_default_type(default: Any, value: Any) -> Any:
+    """An int given where the default is a float becomes a float (YAML `100` for `100.0`)."""
+    if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    return value
+
+
 def declare_config(node: Node, prefix: str) -> Any:
     """Declare `prefix.<field>` for every field of the section's config; return the config.
 
@@ -40,11 +47,7 @@ def declare_config(node: Node, prefix: str) -> Any:
         p = node.declare_parameter(name, list(default) if isinstance(default, tuple) else default,
                                    ParameterDescriptor(dynamic_typing=True))
         v = p.value
-        if isinstance(default, tuple):
-            v = tuple(float(x) for x in v)
-        if isinstance(default, float) and isinstance(v, int) and not isinstance(v, bool):
-            v = float(v)
-        values[f.name] = v
+        values[f.name] = tuple(float(x) for x in v) if isinstance(default, tuple) else _as_default_type(default, v)
     try:
         return cls.from_dict(values)
     except ValueError as e:
@@ -53,9 +56,7 @@ def declare_config(node: Node, prefix: str) -> Any:
 
 def param(node: Node, name: str, default: T) -> T:
     """Declare a plain parameter and return its value (ints accepted for floats)."""
-    v = node.declare_parameter(name, default, ParameterDescriptor(dynamic_typing=True)).value
-    if isinstance(default, float) and isinstance(v, int) and not isinstance(v, bool):
-        v = float(v)
+    v = _as_default_type(default, node.declare_parameter(name, default, ParameterDescriptor(dynamic_typing=True)).value)
     if default is not None and type(v) is not type(default):
         raise ValueError(f"node {node.get_name()}: parameter '{name}' must be "
                          f"{type(default).__name__}, got {v!r}")

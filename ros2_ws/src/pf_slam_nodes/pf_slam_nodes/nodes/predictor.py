@@ -24,6 +24,7 @@ from sensor_msgs.msg import JointState, LaserScan
 
 from ..core.odometry import GyroBuffer, OdometryBuffer, WheelOdometryIntegrator
 from ..core.stages import PredictionStage
+from ..io.trajectory import quat_to_yaw
 from ..ros import convert, qos, topics
 from .common import announce_when_matched, declare_config, param, run_node
 
@@ -75,7 +76,7 @@ class Predictor(Node):
     # ------------------------------------------------------------------ inputs
     def _on_odom(self, msg: Odometry) -> None:
         o = msg.pose.pose.orientation
-        yaw = convert.quaternion_to_yaw(o.x, o.y, o.z, o.w)
+        yaw = float(quat_to_yaw(o.x, o.y, o.z, o.w))
         self.odom.add(convert.stamp_to_ns(msg.header.stamp),
                       np.array([msg.pose.pose.position.x, msg.pose.pose.position.y, yaw]))
         self.odom_received += 1

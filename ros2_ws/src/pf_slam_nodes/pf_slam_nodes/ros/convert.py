@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import array
-import math
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -11,9 +10,9 @@ from nav_msgs.msg import OccupancyGrid
 from pf_slam_interfaces.msg import ParticleArray
 from sensor_msgs.msg import LaserScan
 
-
-def stamp_to_ns(stamp: Time) -> int:
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+from ..io.bag import stamp_ns_of as stamp_to_ns  # noqa: F401  (Time or message -> int ns)
+from ..io.bag import yaw_to_quat
+from ..io.trajectory import quat_to_yaw
 
 
 def ns_to_stamp(ns: int) -> Time:
@@ -63,22 +62,13 @@ def scan_arrays(msg: LaserScan) -> tuple[np.ndarray, np.ndarray]:
     return ranges, angles
 
 
-def yaw_to_quaternion(yaw: float) -> tuple[float, float, float, float]:
-    """(x, y, z, w) of a rotation about z."""
-    return 0.0, 0.0, math.sin(yaw / 2.0), math.cos(yaw / 2.0)
-
-
-def quaternion_to_yaw(x: float, y: float, z: float, w: float) -> float:
-    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-
-
 def pose_stamped(pose: np.ndarray, stamp_ns: int, frame_id: str) -> PoseStamped:
     msg = PoseStamped()
     msg.header.stamp = ns_to_stamp(stamp_ns)
     msg.header.frame_id = frame_id
     msg.pose.position.x = float(pose[0])
     msg.pose.position.y = float(pose[1])
-    qx, qy, qz, qw = yaw_to_quaternion(float(pose[2]))
+    qx, qy, qz, qw = yaw_to_quat(float(pose[2]))
     msg.pose.orientation.x, msg.pose.orientation.y = qx, qy
     msg.pose.orientation.z, msg.pose.orientation.w = qz, qw
     return msg
@@ -87,7 +77,7 @@ def pose_stamped(pose: np.ndarray, stamp_ns: int, frame_id: str) -> PoseStamped:
 def pose_from_msg(msg: PoseStamped) -> np.ndarray:
     o = msg.pose.orientation
     return np.array([msg.pose.position.x, msg.pose.position.y,
-                     quaternion_to_yaw(o.x, o.y, o.z, o.w)])
+                     float(quat_to_yaw(o.x, o.y, o.z, o.w))])
 
 
 def transform(parent: str, child: str, pose: np.ndarray, stamp_ns: int) -> TransformStamped:
@@ -97,7 +87,7 @@ def transform(parent: str, child: str, pose: np.ndarray, stamp_ns: int) -> Trans
     t.child_frame_id = child
     t.transform.translation.x = float(pose[0])
     t.transform.translation.y = float(pose[1])
-    qx, qy, qz, qw = yaw_to_quaternion(float(pose[2]))
+    qx, qy, qz, qw = yaw_to_quat(float(pose[2]))
     t.transform.rotation.x, t.transform.rotation.y = qx, qy
     t.transform.rotation.z, t.transform.rotation.w = qz, qw
     return t
