@@ -52,9 +52,12 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--snapshot-every", type=int, default=200, help="snapshot PNG every N scans (0: none)")
 
     e = sub.add_parser("eval", help="ATE/RPE against a reference trajectory; Kümmerle relations error")
-    e.add_argument("--est", required=True, help="estimated trajectory (TUM)")
+    e.add_argument("--est", help="estimated trajectory (TUM)")
     e.add_argument("--gt", help="reference trajectory (TUM or 't x y theta'), or a .relations file")
     e.add_argument("--relations", help="Kümmerle et al. 2009 relations file")
+    e.add_argument("--map", help="estimated map (map_server yaml, e.g. RUN/map.yaml)")
+    e.add_argument("--gt-map", help="ground-truth map (map_server yaml): occupied-cell F1")
+    e.add_argument("--map-tolerance", type=float, default=0.3, help="F1 match distance (m)")
     e.add_argument("--json", action="store_true", help="print JSON")
 
     si = sub.add_parser("simulate-indoor", help="write the seeded indoor sample bag with ground truth")
@@ -105,9 +108,12 @@ def _dispatch(args: argparse.Namespace) -> int:
         return run_cli(args)
     if args.command == "eval":
         from .core.metrics import evaluate, format_evaluation
-        if not args.gt and not args.relations:
-            raise ValueError("eval needs --gt and/or --relations")
-        res = evaluate(args.est, args.gt, relations_path=args.relations)
+        if not args.gt and not args.relations and not args.map:
+            raise ValueError("eval needs --est with --gt and/or --relations, or --map with --gt-map")
+        if (args.gt or args.relations) and not args.est:
+            raise ValueError("eval: --gt/--relations need --est (the estimated trajectory)")
+        res = evaluate(args.est, args.gt, relations_path=args.relations, map_path=args.map,
+                       gt_map_path=args.gt_map, map_tolerance_m=args.map_tolerance)
         print(json.dumps(res, indent=2) if args.json else format_evaluation(res))
         return 0
     if args.command == "simulate-indoor":

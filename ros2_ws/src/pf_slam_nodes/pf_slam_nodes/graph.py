@@ -2,7 +2,8 @@
 
 One process with one executor (`single`), or one process per node over DDS (`multi`); the
 nodes are the same classes either way. A recorder node in this process collects the pose of
-every scan (particles/updated) and the final /map, and writes the outputs.
+every scan (pose), the corrections (particles/updated) and the final /map, and writes the
+outputs.
 """
 from __future__ import annotations
 
@@ -170,6 +171,7 @@ class _Recorder:
 
     def __init__(self, node, out_dir: Path, scans_total: int, bag_duration_s: float,
                  snapshot_every: int, progress: bool) -> None:
+        from geometry_msgs.msg import PoseStamped
         from nav_msgs.msg import OccupancyGrid
         from pf_slam_interfaces.msg import ParticleArray, ReplayStatus
 
@@ -187,6 +189,7 @@ class _Recorder:
         self.replay_counts: dict[str, int] | None = None
         self.t0 = time.monotonic()
         self._last_print = 0.0
+        node.create_subscription(PoseStamped, topics.POSE, self._on_pose, qos.pipeline())
         node.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         node.create_subscription(OccupancyGrid, topics.MAP, self._on_map, qos.latched())
         node.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
@@ -195,10 +198,12 @@ class _Recorder:
         self.replay_counts = dict(zip(msg.topics, (int(c) for c in msg.counts)))
 
     def _on_updated(self, msg) -> None:
+        self.updates += int(msg.update)
+
+    def _on_pose(self, msg) -> None:
         from .ros import convert
         self.stamps.append(convert.stamp_to_ns(msg.header.stamp))
-        self.poses.append(np.array(msg.pose, dtype=np.float64))
-        self.updates += int(msg.update)
+        self.poses.append(convert.pose_from_msg(msg))
         k = len(self.poses)
         if self.snapshot_every and k % self.snapshot_every == 0 and self.map_msg is not None:
             self.snapshot(f"scan_{k:06d}.png")
@@ -271,7 +276,8 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     if params_file:
         layers.append(load_params(params_file))
     layers.append({"bag_replay": {"bag": str(bag), "rate": str(rate)},
-                   "correlator": {"expected_observers": 1}})  # the recorder below
+                   "correlator": {"expected_observers": 1},  # the recorder below
+                   "predictor": {"expected_observers": 1}})
     if overrides:
         layers.append(overrides)
     per_node = {n: node_params(layers, n) for n in NODE_NAMES}
@@ -301,7 +307,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
                 ex.add_node(node)
         else:
             children = _spawn(per_node, domain_id, out)
-        last_progress, last_count = time.monotonic(), -1
+        state = {"last_progress": time.monotonic(), "last_count": -1}
 
         def finished() -> bool:
             m = rec.map_msg
@@ -310,19 +316,33 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
             # paced replays (--rate N) may lose scans under load: once the bag is out and the
             # pipeline has been idle for drain_timeout_s, finish and report them as dropped
             return (rec.replay_counts is not None and m is not None
-                    and time.monotonic() - last_progress > drain_timeout_s)
+                    and time.monotonic() - state["last_progress"] > drain_timeout_s)
 
-        while not finished():
-            ex.spin_once(timeout_sec=0.05)
-            if len(rec.poses) != last_count:
-                last_count, last_progress = len(rec.poses), time.monotonic()
+        def check() -> None:
+            """Every 50 ms: done? a child process gone? stuck? -> resolve `outcome` (the executor
+            then returns; checking on a timer keeps Python out of the per-message path)."""
+            if outcome.done():
+                return
+            if len(rec.poses) != state["last_count"]:
+                state["last_count"], state["last_progress"] = len(rec.poses), time.monotonic()
             for c in children:
                 if c.poll() is not None:
-                    raise RunError(f"node process {c.args[2]} exited with code {c.returncode}; "
-                                   f"log: {out / 'logs'}")
-            if time.monotonic() - last_progress > idle_timeout_s:
-                raise RunError(f"no progress for {idle_timeout_s:.0f} s: {len(rec.poses)}/{scans_total} "
-                               "scans processed")
+                    outcome.set_result(RunError(f"node process {c.args[2]} exited with code "
+                                                f"{c.returncode}; log: {out / 'logs'}"))
+                    return
+            if time.monotonic() - state["last_progress"] > idle_timeout_s:
+                outcome.set_result(RunError(f"no progress for {idle_timeout_s:.0f} s: "
+                                            f"{len(rec.poses)}/{scans_total} scans processed"))
+            elif finished():
+                outcome.set_result(None)
+
+        from rclpy.task import Future
+        outcome = Future()
+        rec_node.create_timer(0.05, check)
+        while not outcome.done():
+            ex.spin_until_future_complete(outcome, timeout_sec=1.0)
+        if isinstance(outcome.result(), RunError):
+            raise outcome.result()
         wall = time.monotonic() - t_start
         rec.print_progress(final=True)
         scans_published = (rec.replay_counts or {}).get("/scan", scans_total)

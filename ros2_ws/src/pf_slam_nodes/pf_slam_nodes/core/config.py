@@ -358,6 +358,11 @@ class FilterConfig(_ConfigBase):
         ... or turned at least this much (rad).
     sensor_offset_x_m, sensor_offset_y_m, sensor_offset_yaw_rad : float
         Pose of the laser in the robot (base) frame.
+    pose_estimate : str
+        The pose reported for a corrected scan and used by the mapper: ``'best'`` (the
+        highest-weight particle, the classic choice) or ``'mean'`` (the weighted mean of the
+        particles, yaw on the circle: it averages out the per-particle motion noise that the
+        best particle carries into the map; better on the car, see config/kaist.yaml).
     """
 
     num_particles: int = 30
@@ -367,8 +372,11 @@ class FilterConfig(_ConfigBase):
     sensor_offset_x_m: float = 0.0
     sensor_offset_y_m: float = 0.0
     sensor_offset_yaw_rad: float = 0.0
+    pose_estimate: str = "best"
 
     def __post_init__(self) -> None:
+        if self.pose_estimate not in ("best", "mean"):
+            raise ValueError(f"pose_estimate must be 'best' or 'mean', got {self.pose_estimate!r}")
         _check_int("num_particles", self.num_particles, 1)
         _check_int("seed", self.seed, 0)
         _check_nonneg("min_travel_m", self.min_travel_m)

@@ -271,9 +271,11 @@ def relations_error(est_stamps: np.ndarray, est_poses: np.ndarray, rel_stamps: n
             'rot_sq_mean_deg': m(rot * rot, np.mean), 'n_used': n, 'n_total': int(len(rs))}
 
 
-def evaluate(est_path: str | os.PathLike, gt_path: str | os.PathLike | None = None,
+def evaluate(est_path: str | os.PathLike | None, gt_path: str | os.PathLike | None = None,
              relations_path: str | os.PathLike | None = None, max_dt: float = 0.02,
-             relations_max_dt: float = RELATION_MAX_DT, rpe_delta: int = 1) -> dict:
+             relations_max_dt: float = RELATION_MAX_DT, rpe_delta: int = 1,
+             map_path: str | os.PathLike | None = None, gt_map_path: str | os.PathLike | None = None,
+             map_tolerance_m: float = 0.3) -> dict:
     """Evaluate a trajectory file against a reference trajectory and/or relations.
 
     ``est_path`` and ``gt_path`` are TUM or ``t x y theta`` files; a ``gt_path`` ending in
@@ -292,10 +294,21 @@ def evaluate(est_path: str | os.PathLike, gt_path: str | os.PathLike | None = No
 
     if gt_path is not None and str(gt_path).endswith('.relations') and relations_path is None:
         gt_path, relations_path = None, gt_path
-    if gt_path is None and relations_path is None:
-        raise ValueError('evaluate needs a reference trajectory (gt_path) or relations_path')
+    if (map_path is None) != (gt_map_path is None):
+        raise ValueError('a map evaluation needs both the map and the ground-truth map (yaml)')
+    if gt_path is None and relations_path is None and map_path is None:
+        raise ValueError('evaluate needs a reference trajectory (gt_path), relations_path or a map pair')
+    out: dict = {}
+    if map_path is not None:
+        from pf_slam_nodes.io.mapfile import read_map
+        eo, er, eorig = read_map(map_path)
+        go, gr, gorig = read_map(gt_map_path)
+        out.update(map_est=str(map_path), map_gt=str(gt_map_path),
+                   map=map_f1(eo, er, eorig[:2], go, gr, gorig[:2], tolerance_m=map_tolerance_m))
+    if est_path is None:
+        return out
     t_est, p_est = read_trajectory(est_path)
-    out: dict = {'est': str(est_path), 'n_est': int(len(t_est))}
+    out.update(est=str(est_path), n_est=int(len(t_est)))
     if gt_path is not None:
         t_gt, p_gt = read_trajectory(gt_path)
         pairs = associate(t_est, t_gt, max_dt=max_dt)
@@ -312,9 +325,71 @@ def evaluate(est_path: str | os.PathLike, gt_path: str | os.PathLike | None = No
     return out
 
 
+def map_f1(est_occ: np.ndarray, est_res: float, est_origin, gt_occ: np.ndarray, gt_res: float,
+           gt_origin, tolerance_m: float = 0.3, occupied: int = 65) -> dict:
+    """Occupied-cell precision / recall / F1 of an estimated map against a ground-truth map.
+
+    Both maps are ``(H, W)`` int8 nav_msgs/OccupancyGrid values (-1 unknown, 0..100), row 0 =
+    lowest y, ``origin`` = world ``(x, y)`` of the lower-left corner, in the same world frame
+    (the SLAM map frame is the odometry frame at the first scan; the simulator's world frame is
+    the vehicle's true start pose: the same frame). A cell is occupied at ``>= occupied``.
+
+    A lidar sees the outline of an obstacle, not its inside, so the reference cells are the
+    *edge* cells of the ground truth (occupied with a free 4-neighbour), and only the edges the
+    run observed count for recall: those within ``tolerance_m`` of a cell the estimate knows
+    (not -1). precision = estimated occupied cells within ``tolerance_m`` of a ground-truth
+    occupied cell / estimated occupied cells; recall = observed edge cells within
+    ``tolerance_m`` of an estimated occupied cell / observed edge cells.
+    """
+    import cv2  # distance transforms; cv2 is a dependency of the project
+
+    gt = np.asarray(gt_occ)
+    g_occ = gt >= occupied
+    free = gt == 0
+    nb_free = np.zeros_like(free)
+    nb_free[1:, :] |= free[:-1, :]
+    nb_free[:-1, :] |= free[1:, :]
+    nb_free[:, 1:] |= free[:, :-1]
+    nb_free[:, :-1] |= free[:, 1:]
+    g_edge = g_occ & nb_free
+    # the estimate resampled onto the ground-truth grid (nearest cell centre)
+    est = np.asarray(est_occ)
+    h, w = gt.shape
+    ys, xs = np.mgrid[0:h, 0:w]
+    wx = np.asarray(gt_origin, float)[0] + (xs + 0.5) * gt_res
+    wy = np.asarray(gt_origin, float)[1] + (ys + 0.5) * gt_res
+    ec = np.floor((wx - np.asarray(est_origin, float)[0]) / est_res).astype(np.int64)
+    er = np.floor((wy - np.asarray(est_origin, float)[1]) / est_res).astype(np.int64)
+    inside = (ec >= 0) & (ec < est.shape[1]) & (er >= 0) & (er < est.shape[0])
+    e = np.full(gt.shape, -1, dtype=np.int16)
+    e[inside] = est[er[inside], ec[inside]]
+    e_occ = e >= occupied
+    e_known = e >= 0
+
+    def dist_to(mask: np.ndarray) -> np.ndarray:
+        if not mask.any():
+            return np.full(mask.shape, np.inf, dtype=np.float32)
+        return cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, 5) * gt_res
+
+    tol = float(tolerance_m)
+    d_gt = dist_to(g_occ)
+    d_est = dist_to(e_occ)
+    d_known = dist_to(e_known)
+    tp_est = int(np.count_nonzero(e_occ & (d_gt <= tol)))
+    n_est = int(np.count_nonzero(e_occ))
+    observed_edges = g_edge & (d_known <= tol)
+    n_ref = int(np.count_nonzero(observed_edges))
+    tp_ref = int(np.count_nonzero(observed_edges & (d_est <= tol)))
+    precision = tp_est / n_est if n_est else 0.0
+    recall = tp_ref / n_ref if n_ref else 0.0
+    f1 = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
+    return {'precision': precision, 'recall': recall, 'f1': f1, 'tolerance_m': tol,
+            'est_occupied_cells': n_est, 'observed_edge_cells': n_ref}
+
+
 def format_evaluation(res: dict) -> str:
     """Human-readable lines for ``pf-slam eval``."""
-    lines = [f"estimate: {res['est']} ({res['n_est']} poses)"]
+    lines = [f"estimate: {res['est']} ({res['n_est']} poses)"] if 'est' in res else []
     if 'gt' in res:
         lines.append(f"reference: {res['gt']} ({res['n_gt']} poses), associated "
                      f"{res['n_associated']} within {res['max_dt'] * 1e3:.0f} ms")
@@ -327,6 +402,12 @@ def format_evaluation(res: dict) -> str:
                          f"  rot mean {r['rot_mean_deg']:.3f} deg  (n={r['n']})")
         else:
             lines.append('ATE/RPE: no pose could be associated')
+    if 'map' in res:
+        m = res['map']
+        lines.append(f"map ({res['map_gt']}): occupied-cell F1 {m['f1']:.3f}  precision "
+                     f"{m['precision']:.3f}  recall {m['recall']:.3f}  (tolerance "
+                     f"{m['tolerance_m']:.2f} m, {m['est_occupied_cells']} occupied cells, "
+                     f"{m['observed_edge_cells']} observed edge cells)")
     if 'relations' in res:
         q = res['relations']
         lines.append(f"relations ({res['relations_file']}): used {q['n_used']}/{q['n_total']}")

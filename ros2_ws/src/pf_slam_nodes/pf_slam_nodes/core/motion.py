@@ -6,6 +6,8 @@ Angles returned by these functions are wrapped to ``[-pi, pi)``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .config import DiffDriveConfig, OdometryMotionConfig
@@ -28,6 +30,11 @@ def wrap_angle(a: np.ndarray | float) -> np.ndarray:
     return (a + np.pi) % (2.0 * np.pi) - np.pi
 
 
+def _wrap(a: float) -> float:
+    """:func:`wrap_angle` of one Python float (same formula, no array)."""
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
 def relative_pose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Pose ``b`` expressed in the frame of pose ``a`` (``a^-1 (+) b``, the odometry increment).
 
@@ -43,6 +50,11 @@ def relative_pose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
+    if a.shape == b.shape == (3,):  # one pose: scalar math (the per-scan path of the nodes)
+        ax, ay, at = a.tolist()
+        dx, dy = b[0] - ax, b[1] - ay
+        c, s = math.cos(at), math.sin(at)
+        return np.array([c * dx + s * dy, -s * dx + c * dy, _wrap(float(b[2]) - at)])
     dx = b[..., 0] - a[..., 0]
     dy = b[..., 1] - a[..., 1]
     c = np.cos(a[..., 2])
@@ -67,6 +79,11 @@ def compose(poses: np.ndarray, delta: np.ndarray) -> np.ndarray:
     """
     poses = np.asarray(poses, dtype=np.float64)
     delta = np.asarray(delta, dtype=np.float64)
+    if poses.shape == delta.shape == (3,):  # one pose: scalar math (the per-scan path of the nodes)
+        px, py, pt = poses.tolist()
+        dx, dy, dt = delta.tolist()
+        c, s = math.cos(pt), math.sin(pt)
+        return np.array([px + c * dx - s * dy, py + s * dx + c * dy, _wrap(pt + dt)])
     c = np.cos(poses[..., 2])
     s = np.sin(poses[..., 2])
     x = poses[..., 0] + c * delta[..., 0] - s * delta[..., 1]

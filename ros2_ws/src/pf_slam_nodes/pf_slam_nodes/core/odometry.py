@@ -10,7 +10,7 @@ from typing import Optional
 
 import numpy as np
 
-from .motion import integrate_diff_drive, wheel_odometry, wrap_angle
+from .motion import wrap_angle
 
 
 class OdometryBuffer:
@@ -141,12 +141,17 @@ class WheelOdometryIntegrator:
         if self._last is None:
             self._last = (left_rad, right_rad)
             return self.pose.copy()
-        d, w = wheel_odometry(left_rad - self._last[0], right_rad - self._last[1],
-                              self.left_diameter_m, self.right_diameter_m, self.wheel_base_m)
+        # scalar form of wheel_odometry + integrate_diff_drive (one step per encoder message)
+        dl = (left_rad - self._last[0]) * (0.5 * self.left_diameter_m)
+        dr = (right_rad - self._last[1]) * (0.5 * self.right_diameter_m)
+        d, w = 0.5 * (dl + dr), (dr - dl) / self.wheel_base_m
         if self.use_gyro:
             w = self._pending_gyro_yaw
             self._pending_gyro_yaw = 0.0
-        self.pose = integrate_diff_drive(self.pose, float(d), float(w))
+        x, y, th = self.pose.tolist()
+        heading = th + 0.5 * w
+        self.pose = np.array([x + d * math.cos(heading), y + d * math.sin(heading),
+                              (th + w + math.pi) % (2.0 * math.pi) - math.pi])
         self._last = (left_rad, right_rad)
         return self.pose.copy()
 
@@ -159,28 +164,46 @@ class GyroBuffer:
     """
 
     def __init__(self) -> None:
-        self._stamps = np.zeros(0, dtype=np.int64)
-        self._cum = np.zeros(1)  # cumulative yaw; _cum[k] = sum of the first k increments
+        # stamps and cumulative yaw in growing buffers (capacity doubles; O(1) amortised add):
+        # _cum_buf[k] = sum of the first k increments since the start of the buffer
+        self._st_buf = np.zeros(1024, dtype=np.int64)
+        self._cum_buf = np.zeros(1025)
+        self._n = 0
         self.out_of_order = 0
 
     @property
+    def _stamps(self) -> np.ndarray:
+        return self._st_buf[:self._n]
+
+    @property
+    def _cum(self) -> np.ndarray:
+        return self._cum_buf[:self._n + 1]
+
+    @property
     def last_stamp(self) -> int:
-        return int(self._stamps[-1]) if self._stamps.size else -1
+        return int(self._st_buf[self._n - 1]) if self._n else -1
 
     def add(self, stamps_ns: np.ndarray, dyaw_rad: np.ndarray) -> None:
         st = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
         dy = np.asarray(dyaw_rad, dtype=np.float64).reshape(-1)
         if st.shape != dy.shape:
             raise ValueError(f"gyro batch: {st.size} stamps but {dy.size} increments")
-        keep = st > self.last_stamp
-        if self._stamps.size and not keep.all():
-            self.out_of_order += int((~keep).sum())  # a stamp at or before the last one: dropped
-        st, dy = st[keep], dy[keep]
+        if self._n:
+            keep = st > self.last_stamp
+            if not keep.all():
+                self.out_of_order += int((~keep).sum())  # a stamp at or before the last one: dropped
+                st, dy = st[keep], dy[keep]
         if st.size > 1 and np.any(np.diff(st) <= 0):
             order = np.argsort(st, kind="stable")
             st, dy = st[order], dy[order]
-        self._stamps = np.concatenate([self._stamps, st])
-        self._cum = np.concatenate([self._cum, self._cum[-1] + np.cumsum(dy)])
+        n, k = self._n, st.size
+        if n + k > self._st_buf.size:
+            cap = max(2 * self._st_buf.size, n + k)
+            self._st_buf = np.concatenate([self._st_buf[:n], np.zeros(cap - n, dtype=np.int64)])
+            self._cum_buf = np.concatenate([self._cum_buf[:n + 1], np.zeros(cap - n)])
+        self._st_buf[n:n + k] = st
+        self._cum_buf[n + 1:n + k + 1] = self._cum_buf[n] + np.cumsum(dy)
+        self._n = n + k
 
     def yaw_between(self, t0_ns: int, t1_ns: int) -> float:
         """Sum of the increments stamped in ``(t0, t1]`` (rad)."""
@@ -192,5 +215,7 @@ class GyroBuffer:
         """Forget increments stamped at or before ``before_ns`` (keeps memory bounded)."""
         k = int(np.searchsorted(self._stamps, before_ns, side="right"))
         if k > 10000:
-            self._stamps = self._stamps[k:]
-            self._cum = self._cum[k:]
+            n = self._n - k
+            self._st_buf[:n] = self._st_buf[k:self._n]
+            self._cum_buf[:n + 1] = self._cum_buf[k:self._n + 1]
+            self._n = n

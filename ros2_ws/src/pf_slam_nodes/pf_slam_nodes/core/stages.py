@@ -158,7 +158,14 @@ class CorrectionStage:
         if matched:
             particles, scores = correlate(particles, pts, self.field, self.corr_cfg)
             log_w = update_log_weights(log_w, scores, self.corr_cfg.temperature)
-        pose = particles[int(np.argmax(log_w))].copy()
+        if self.filter_cfg.pose_estimate == "mean":
+            w = np.exp(log_w - log_w.max())
+            w /= w.sum()
+            th = particles[:, 2]
+            pose = np.array([w @ particles[:, 0], w @ particles[:, 1],
+                             math.atan2(w @ np.sin(th), w @ np.cos(th))])
+        else:
+            pose = particles[int(np.argmax(log_w))].copy()
         n = log_w.size
         resampled = bool(n_eff(log_w) < self.resample_cfg.neff_threshold * n)
         if resampled:
@@ -181,6 +188,7 @@ class MappingStage:
         self.laser_cfg = laser_cfg or LaserConfig()
         self.grid: Optional[LogOddsGrid] = None
         self.pose: Optional[np.ndarray] = None
+        self._occ: Optional[np.ndarray] = None  # int8 occupancy of the whole grid, kept current
 
     @property
     def ready(self) -> bool:
@@ -192,6 +200,7 @@ class MappingStage:
         pose = np.asarray(pose, dtype=np.float64).reshape(3)
         if self.grid is None:
             self.grid = LogOddsGrid(self.grid_cfg, center_xy=pose[:2])
+            self._occ = self.grid.occupancy()
         g = self.grid
         ranges, angles, offset = planar_scan(ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset)
         g.integrate_scan(pose, ranges, angles, offset, range_min, range_max)
@@ -200,11 +209,16 @@ class MappingStage:
         if idx.size == 0:
             return MapPatch(np.zeros((0, 0), np.int8), g.resolution, g.origin.copy())
         rows, cols = idx // g.width, idx % g.width
-        bounds = (int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1)
-        return MapPatch(g.occupancy(bounds), g.resolution, g.bounds_origin(bounds))
+        r0, r1, c0, c1 = bounds = (int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1)
+        occ = g.occupancy(bounds)
+        self._occ[r0:r1, c0:c1] = occ
+        return MapPatch(occ, g.resolution, g.bounds_origin(bounds))
 
     def map_occupancy(self) -> tuple[np.ndarray, float, np.ndarray]:
         """int8 occupancy of the explored part of the grid (the whole grid before any scan)."""
-        assert self.grid is not None
+        assert self.grid is not None and self._occ is not None
         bounds = self.grid.touched_bounds
-        return self.grid.occupancy(bounds), self.grid.resolution, self.grid.bounds_origin(bounds)
+        if bounds is None:
+            return self._occ.copy(), self.grid.resolution, self.grid.bounds_origin(None)
+        r0, r1, c0, c1 = bounds
+        return self._occ[r0:r1, c0:c1].copy(), self.grid.resolution, self.grid.bounds_origin(bounds)

@@ -2,7 +2,7 @@
 
 Messages are published as recorded (serialized CDR, never deserialized here), in record-time
 order. Rates: `rate:=max` paces on the pipeline: at most `max_in_flight` scans are published
-and not yet processed (counted on particles/updated), so nothing is dropped and the run is
+and not yet posed (counted on pose, one per scan), so nothing is dropped and the run is
 reproducible; `rate:=1` is real time, `rate:=N` N times real time. At the end of the bag the
 number of messages published per topic goes out on pf_slam/replay_status (latched).
 """
@@ -12,14 +12,15 @@ import importlib
 import time
 from typing import Any
 
-from pf_slam_interfaces.msg import ParticleArray, ReplayStatus
+from geometry_msgs.msg import PoseStamped
+from pf_slam_interfaces.msg import ReplayStatus
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 from ..io.bag import bag_info, read_bag
-from ..ros import convert, qos, topics
+from ..ros import qos, topics
 from .common import param, run_node
 
 LATCHED_TOPICS = ("/tf_static",)
@@ -54,7 +55,7 @@ class BagReplay(Node):
         if not self.bag:
             raise ValueError("parameter 'bag' (path of a rosbag2) is required")
         self.rate = parse_rate(str(param(self, "rate", "max")))
-        self.max_in_flight = param(self, "max_in_flight", 2)
+        self.max_in_flight = param(self, "max_in_flight", 20)
         self.scan_topic = param(self, "scan_topic", "/scan")
         self.clock_period_ns = int(param(self, "clock_period_s", 0.01) * 1e9)
         self.ready_nodes: set[str] = set()
@@ -66,9 +67,9 @@ class BagReplay(Node):
             profile = qos.latched() if topic in LATCHED_TOPICS else qos.pipeline(10000)
             self.publishers_[topic] = self.create_publisher(message_class(msgtype), topic, profile)
         self.pub_clock = self.create_publisher(Clock, topics.CLOCK, qos.outputs(10))
+        self.clock_msg = Clock()  # re-used: building a message costs more than publishing it
         self.pub_status = self.create_publisher(ReplayStatus, topics.REPLAY_STATUS, qos.latched())
-        self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_progress,
-                                 qos.pipeline(), raw=True)
+        self.create_subscription(PoseStamped, topics.POSE, self._on_progress, qos.pipeline(), raw=True)
         self.create_subscription(String, topics.READY, self._on_ready, qos.latched(depth=10))
         self.messages = read_bag(self.bag)
         self.pending: tuple[str, str, int, bytes] | None = None
@@ -127,7 +128,9 @@ class BagReplay(Node):
             if topic == self.scan_topic:
                 self.scans_published += 1
             if stamp_ns - self.last_clock_ns >= self.clock_period_ns or topic == self.scan_topic:
-                self.pub_clock.publish(Clock(clock=convert.ns_to_stamp(stamp_ns)))
+                c = self.clock_msg.clock
+                c.sec, c.nanosec = int(stamp_ns // 1_000_000_000), int(stamp_ns % 1_000_000_000)
+                self.pub_clock.publish(self.clock_msg)
                 self.last_clock_ns = stamp_ns
             self.pending = None
 

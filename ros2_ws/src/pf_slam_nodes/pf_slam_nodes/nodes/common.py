@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import dataclasses
 import sys
+from collections import deque
 from typing import Any, Callable, TypeVar
 
 import rclpy
@@ -85,6 +86,35 @@ def announce_when_matched(node: Node, needs: list[tuple[Any, int]], period_s: fl
             pub.publish(String(data=node.get_name()))
             timer.cancel()
     timer = node.create_timer(period_s, check)
+
+
+class ScanQueue:
+    """Serialized scans in arrival order, numbered from 0; a scan is deserialized only when it
+    is taken. The correlator and the mapper need only the scans that are corrected (the car's
+    lidar runs at 100 Hz, corrections every ~2 m), so most scans are dropped unread."""
+
+    def __init__(self) -> None:
+        self._raw: deque[bytes] = deque()
+        self._first = 0  # index of _raw[0]
+        self.received = 0
+
+    def append(self, raw: bytes) -> None:
+        self._raw.append(raw)
+        self.received += 1
+
+    def has(self, index: int) -> bool:
+        return index < self.received
+
+    def take(self, index: int):
+        """Deserialize scan `index` (a LaserScan); scans before it are forgotten."""
+        from rclpy.serialization import deserialize_message
+        from sensor_msgs.msg import LaserScan
+        if not self._first <= index < self.received:
+            raise IndexError(f"scan {index} is not queued (have {self._first}..{self.received - 1})")
+        for _ in range(index - self._first):
+            self._raw.popleft()
+        self._first = index + 1
+        return deserialize_message(self._raw.popleft(), LaserScan)
 
 
 def run_node(factory: Callable[..., Node], args: list[str] | None = None) -> int:

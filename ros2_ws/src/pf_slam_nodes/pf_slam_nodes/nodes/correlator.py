@@ -1,8 +1,10 @@
 """correlator: corrects each predicted particle set against the map with the scan.
 
-Subscribes: scan (LaserScan), particles/predicted (ParticleArray), pf_slam/grid (after each
-integration, the mapper's patch: occupancy of the cells that scan touched). Publishes: particles/updated (one per scan, carrying the
-pose estimate), pose (geometry_msgs/PoseStamped of the best particle, map frame).
+Subscribes: scan (LaserScan, kept serialized; only the scans that are corrected are
+deserialized), particles/predicted (ParticleArray: one per correction, plus the pass-through
+end-of-run set), pf_slam/grid (after each integration, the mapper's patch: occupancy of the
+cells that scan touched). Publishes: particles/updated (one per predicted set, carrying the
+pose estimate: the best particle).
 
 A corrected set (update=true) is scored against the map that holds every scan corrected before
 it: the node waits for the grid of the previous correction, so the result does not depend on
@@ -14,7 +16,6 @@ from collections import deque
 
 import numpy as np
 
-from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import OccupancyGrid
 from pf_slam_interfaces.msg import ParticleArray
 from rclpy.node import Node
@@ -23,7 +24,7 @@ from sensor_msgs.msg import LaserScan
 from ..core.motion import compose
 from ..core.stages import CorrectionStage, MapPatch
 from ..ros import convert, qos, topics
-from .common import announce_when_matched, declare_config, param, run_node
+from .common import ScanQueue, announce_when_matched, declare_config, param, run_node
 
 
 class Correlator(Node):
@@ -34,20 +35,19 @@ class Correlator(Node):
                                      declare_config(self, "correlation"), declare_config(self, "resample"),
                                      declare_config(self, "laser"))
         self.map_frame = param(self, "map_frame", "map")
-        self.scans: deque[LaserScan] = deque()
+        self.scans = ScanQueue()
         self.predicted: deque[ParticleArray] = deque()
         self.grids_received = 0
         self.corrections_sent = 0
         self.pub_updated = self.create_publisher(ParticleArray, topics.PARTICLES_UPDATED, qos.pipeline())
-        self.pub_pose = self.create_publisher(PoseStamped, topics.POSE, qos.outputs())
-        # predictor, mapper, bag_replay (+ observers that must see every scan, e.g. a recorder)
-        announce_when_matched(self, [(self.pub_updated, 3 + param(self, "expected_observers", 0))])
-        self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline())
+        # predictor, mapper (+ observers that must see every set, e.g. a recorder)
+        announce_when_matched(self, [(self.pub_updated, 2 + param(self, "expected_observers", 0))])
+        self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline(), raw=True)
         self.create_subscription(ParticleArray, topics.PARTICLES_PREDICTED, self._on_predicted, qos.pipeline())
         self.create_subscription(OccupancyGrid, topics.GRID, self._on_grid, qos.pipeline(10))
 
-    def _on_scan(self, msg: LaserScan) -> None:
-        self.scans.append(msg)
+    def _on_scan(self, raw: bytes) -> None:
+        self.scans.append(raw)
         self._drain()
 
     def _on_predicted(self, msg: ParticleArray) -> None:
@@ -61,13 +61,13 @@ class Correlator(Node):
         self._drain()
 
     def _drain(self) -> None:
-        # scans and sets both arrive in scan order; set k belongs to the k-th scan
-        while self.predicted and self.scans:
+        # scans and sets both arrive in scan order; a set names its scan by index
+        while self.predicted and self.scans.has(self.predicted[0].scan_index):
             pa = self.predicted[0]
             if pa.update and self.grids_received < self.corrections_sent:
                 return  # the map of the previous correction is not here yet
             self.predicted.popleft()
-            scan = self.scans.popleft()
+            scan = self.scans.take(pa.scan_index)
             stamp = convert.stamp_to_ns(scan.header.stamp)
             particles, log_w = convert.msg_to_particles(pa)
             if pa.update:
@@ -82,7 +82,6 @@ class Correlator(Node):
                 particles, log_w, stamp_ns=stamp, frame_id=self.map_frame,
                 scan_index=pa.scan_index, update=pa.update, odom_pose=pa.odom_pose,
                 pending_delta=pa.pending_delta, pose=pose))
-            self.pub_pose.publish(convert.pose_stamped(pose, stamp, self.map_frame))
 
 
 def main(args: list[str] | None = None) -> int:

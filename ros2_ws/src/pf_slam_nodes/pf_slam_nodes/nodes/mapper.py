@@ -1,11 +1,13 @@
 """mapper: integrates each corrected scan into the log-odds grid and publishes the map.
 
-Subscribes: scan (LaserScan), particles/updated (ParticleArray with the pose of every scan),
+Subscribes: scan (LaserScan, kept serialized; only corrected scans are deserialized),
+particles/updated (ParticleArray: every corrected set, and the end-of-run pass-through set),
 pf_slam/replay_status (messages per topic, at the end of the bag).
 Publishes: pf_slam/grid (after every integration, the patch of cells the scan touched, for
-the correlator),
-map + map_metadata (latched, on a timer and once more after the last scan), path (on the timer),
-/tf (map -> odom, every scan).
+the correlator), map + map_metadata (latched, on a timer and once more after the last scan),
+path (on the timer: the poses of the corrected scans), /tf (map -> odom, at every correction:
+between corrections map -> odom does not change, since scan poses are then the corrected pose
+composed with the odometry increment).
 """
 from __future__ import annotations
 
@@ -22,7 +24,7 @@ from tf2_msgs.msg import TFMessage
 from ..core.motion import compose, relative_pose
 from ..core.stages import MappingStage
 from ..ros import convert, qos, topics
-from .common import announce_when_matched, declare_config, param, run_node
+from .common import ScanQueue, announce_when_matched, declare_config, param, run_node
 
 
 class Mapper(Node):
@@ -34,9 +36,10 @@ class Mapper(Node):
         self.odom_frame = param(self, "odom_frame", "odom")
         period = param(self, "map_publish_period_s", 1.0)
         self.scan_topic = self.resolve_topic_name(topics.SCAN)
-        self.scans: deque[LaserScan] = deque()
+        self.scans = ScanQueue()
         self.updates: deque[ParticleArray] = deque()
         self.processed = 0
+        self.last_index = -1
         self.total: int | None = None
         self.last_stamp = 0
         self.path: list[PoseStamped] = []
@@ -46,13 +49,13 @@ class Mapper(Node):
         self.pub_path = self.create_publisher(Path, topics.PATH, qos.outputs(10))
         self.pub_tf = self.create_publisher(TFMessage, topics.TF, qos.outputs())
         announce_when_matched(self, [(self.pub_grid, 1)])  # the correlator
-        self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline())
+        self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline(), raw=True)
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
         self.create_timer(period, self.publish_map)
 
-    def _on_scan(self, msg: LaserScan) -> None:
-        self.scans.append(msg)
+    def _on_scan(self, raw: bytes) -> None:
+        self.scans.append(raw)
         self._drain()
 
     def _on_updated(self, msg: ParticleArray) -> None:
@@ -64,8 +67,9 @@ class Mapper(Node):
         self._maybe_finish()
 
     def _drain(self) -> None:
-        while self.updates and self.scans:
-            pa, scan = self.updates.popleft(), self.scans.popleft()
+        while self.updates and self.scans.has(self.updates[0].scan_index):
+            pa = self.updates.popleft()
+            scan = self.scans.take(pa.scan_index)
             stamp = convert.stamp_to_ns(scan.header.stamp)
             pose = np.asarray(pa.pose, dtype=np.float64)
             if pa.update:
@@ -79,11 +83,12 @@ class Mapper(Node):
                 convert.transform(self.map_frame, self.odom_frame, map_to_odom, stamp)]))
             self.path.append(convert.pose_stamped(pose, stamp, self.map_frame))
             self.processed += 1
+            self.last_index = pa.scan_index
             self.last_stamp = stamp
         self._maybe_finish()
 
     def _maybe_finish(self) -> None:
-        if self.total is not None and self.processed == self.total:
+        if self.total is not None and self.last_index == self.total - 1:
             self.publish_map()
             self.total = None  # publish the final map once
 

@@ -1,27 +1,33 @@
 """predictor: owns the particle set between scans and moves it with the motion model.
 
-Subscribes: scan (LaserScan; only its stamp is used), odom (nav_msgs/Odometry) or
-encoders (JointState wheel angles, rad) with optional fog (FogBatch or Vector3Stamped yaw
-increments, which then replace the wheels' yaw), particles/updated (the corrected set),
-pf_slam/replay_status (end of the bag). Publishes: particles/predicted (one per scan).
+Subscribes: scan (LaserScan; only its stamp is read, from the serialized bytes), odom
+(nav_msgs/Odometry) or encoders (JointState wheel angles, rad) with optional fog (FogBatch or
+Vector3Stamped yaw increments, which then replace the wheels' yaw), particles/updated (the
+corrected set), pf_slam/replay_status (end of the bag). Publishes: pose (PoseStamped, map
+frame, exactly one per scan, in scan order), particles/predicted (one per correction).
 
 Per scan, in order: the odometry pose at the scan stamp is looked up; if the robot moved less
-than filter.min_travel_m / filter.min_rotation_rad since the last correction, the set is passed
-on unchanged with update=false and the odometry increment in pending_delta; otherwise the
-particles are moved by the noisy odometry increment and sent with update=true, and the next
-scan waits until the corrected set comes back on particles/updated.
+than filter.min_travel_m / filter.min_rotation_rad since the last correction, the scan is a
+*pass-through*: its pose is the last corrected pose composed with the odometry increment, and
+it goes out on pose at once, without a message to the correlator (the car's 100 Hz lidar is
+corrected every ~2 m: most scans are pass-throughs). Otherwise the particles are moved by the
+noisy odometry increment and sent with update=true; the scan's pose goes out when the corrected
+set comes back on particles/updated, and the next scan waits for it. The last scan of the bag
+is always sent on particles/predicted (update=false if it is a pass-through) so the correlator
+and the mapper see the end of the run.
 """
 from __future__ import annotations
 
 from collections import deque
 
 import numpy as np
+from geometry_msgs.msg import PoseStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
-from geometry_msgs.msg import Vector3Stamped
 from pf_slam_interfaces.msg import FogBatch, ParticleArray, ReplayStatus
 from rclpy.node import Node
 from sensor_msgs.msg import JointState, LaserScan
 
+from ..core.motion import compose
 from ..core.odometry import GyroBuffer, OdometryBuffer, WheelOdometryIntegrator
 from ..core.stages import PredictionStage
 from ..io.trajectory import quat_to_yaw
@@ -43,10 +49,20 @@ class Predictor(Node):
         self.waiting_for: int | None = None  # scan index of the update in flight
         self.odom_received = 0
         self.odom_expected: int | None = None  # from the replay's final counts
+        self.scans_expected: int | None = None
+        self.corrected_pose = np.zeros(3)  # pose of the last corrected scan
+        self.last_pass_through: tuple | None = None  # (index, stamp, odom, delta)
+        self.end_sent = False
         self.odom_topic = self.resolve_topic_name(topics.ODOM if source == "odom" else topics.ENCODERS)
+        self.scan_topic = self.resolve_topic_name(topics.SCAN)
         self.pub = self.create_publisher(ParticleArray, topics.PARTICLES_PREDICTED, qos.pipeline())
-        announce_when_matched(self, [(self.pub, 1)])  # the correlator
-        self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline())
+        self.pub_pose = self.create_publisher(PoseStamped, topics.POSE, qos.pipeline())
+        self.pose_msg = PoseStamped()  # re-used: one pose per scan
+        self.pose_msg.header.frame_id = self.map_frame
+        # the correlator; bag_replay (paces on pose) + observers that must see every pose
+        announce_when_matched(self, [(self.pub, 1),
+                                     (self.pub_pose, 1 + param(self, "expected_observers", 0))])
+        self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline(), raw=True)
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
         if source == "odom":
@@ -118,14 +134,16 @@ class Predictor(Node):
             self.last_encoder_ns = t
             self.odom_received += 1
 
-    def _on_scan(self, msg: LaserScan) -> None:
-        self.scans.append((self.scan_count, convert.stamp_to_ns(msg.header.stamp)))
+    def _on_scan(self, raw: bytes) -> None:
+        self.scans.append((self.scan_count, convert.stamp_ns_from_cdr(raw)))
         self.scan_count += 1
         self._drain()
 
     def _on_updated(self, msg: ParticleArray) -> None:
         if msg.update and msg.scan_index == self.waiting_for:
             self.stage.set_corrected(*convert.msg_to_particles(msg))
+            self.corrected_pose = np.array(msg.pose, dtype=np.float64)
+            self._publish_pose(self.corrected_pose, convert.stamp_to_ns(msg.header.stamp))
             self.waiting_for = None
             self._drain()
 
@@ -133,6 +151,7 @@ class Predictor(Node):
         counts = dict(zip(msg.topics, msg.counts))
         self.odom_expected = int(counts.get(self.odom_topic, 0))
         self.fog_expected = int(counts.get(self.fog_topic, 0))
+        self.scans_expected = int(counts.get(self.scan_topic, 0))
         self._drain()
 
     # ------------------------------------------------------------------ the work
@@ -152,17 +171,34 @@ class Predictor(Node):
             self.scans.popleft()
             self._predict(index, stamp, odom)
         self.odom.trim()
+        self._maybe_send_end()
 
     def _predict(self, index: int, stamp: int, odom: np.ndarray) -> None:
         update, delta = self.stage.predict(odom)
-        # a pass-through set carries no particles: only the increment matters downstream
-        poses, log_w = ((self.stage.particles, self.stage.log_weights) if update
-                        else (np.zeros((0, 3)), np.zeros(0)))
-        self.pub.publish(convert.particles_to_msg(
-            poses, log_w, stamp_ns=stamp, frame_id=self.map_frame, scan_index=index,
-            update=update, odom_pose=odom, pending_delta=None if update else delta))
         if update:
+            self.pub.publish(convert.particles_to_msg(
+                self.stage.particles, self.stage.log_weights, stamp_ns=stamp,
+                frame_id=self.map_frame, scan_index=index, update=True, odom_pose=odom))
             self.waiting_for = index
+            return
+        self._publish_pose(compose(self.corrected_pose, delta), stamp)
+        self.last_pass_through = (index, stamp, odom, delta)
+
+    def _publish_pose(self, pose: np.ndarray, stamp: int) -> None:
+        self.pub_pose.publish(convert.fill_pose_stamped(self.pose_msg, pose, stamp))
+
+    def _maybe_send_end(self) -> None:
+        """Once the last scan of the bag is posed as a pass-through, send it on as the end of
+        the run: a set without particles (update=false) that the correlator and mapper pass on."""
+        last = self.last_pass_through
+        if (self.end_sent or self.scans_expected is None or last is None
+                or last[0] != self.scans_expected - 1):
+            return
+        index, stamp, odom, delta = last
+        self.pub.publish(convert.particles_to_msg(
+            np.zeros((0, 3)), np.zeros(0), stamp_ns=stamp, frame_id=self.map_frame,
+            scan_index=index, update=False, odom_pose=odom, pending_delta=delta))
+        self.end_sent = True
 
 
 def main(args: list[str] | None = None) -> int:

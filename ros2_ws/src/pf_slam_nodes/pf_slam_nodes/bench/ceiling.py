@@ -1,0 +1,106 @@
+"""The replay-only ceiling: how fast this machine and this middleware can move a bag through
+the graph's topics when the nodes do nothing but count.
+
+bag_replay (the real node, `rate:=max`) publishes every topic of the bag into three sinks
+standing in for predictor, correlator and mapper: each subscribes (serialized, no
+deserialization) to what the real node subscribes to; the predictor's sink answers every scan
+with one pose (a pre-serialized PoseStamped), which is what the replay paces on. The real
+graph cannot be faster than this; `pf-slam bench` prints each run's ratio to it.
+"""
+from __future__ import annotations
+
+import time
+
+from ..io.bag import bag_info
+
+
+def _sink_class():
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.node import Node
+    from rclpy.serialization import serialize_message
+
+    from ..nodes.bag_replay import message_class
+    from ..nodes.common import announce_when_matched
+    from ..ros import qos, topics
+
+    class CountingSink(Node):
+        """Subscribes to `subscribe` (topic -> type name) raw and counts; optionally answers
+        every scan with a pose."""
+
+        def __init__(self, name: str, subscribe: dict[str, str], echo_pose: bool, context) -> None:
+            super().__init__(name, context=context)
+            self.counts = {t: 0 for t in subscribe}
+            self.pose_raw = serialize_message(PoseStamped())
+            needs = []
+            if echo_pose:
+                self.pub_pose = self.create_publisher(PoseStamped, topics.POSE, qos.pipeline())
+                needs.append((self.pub_pose, 1))
+            for topic, msgtype in subscribe.items():
+                cb = self._scan if echo_pose and topic == "/scan" else self._counter(topic)
+                self.create_subscription(message_class(msgtype), topic, cb, qos.pipeline(10000), raw=True)
+            announce_when_matched(self, needs)
+
+        def _counter(self, topic: str):
+            def cb(_raw: bytes) -> None:
+                self.counts[topic] += 1
+            return cb
+
+        def _scan(self, _raw: bytes) -> None:
+            self.counts["/scan"] += 1
+            self.pub_pose.publish(self.pose_raw)
+
+    return CountingSink
+
+
+def replay_ceiling(bag: str, executor: str = "events", domain_id: int | None = None,
+                   timeout_s: float = 600.0) -> dict:
+    """Replay `bag` at max into counting sinks in one process; returns wall time, RTF, counts."""
+    import os
+
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    from ..graph import make_executor
+    from ..nodes.bag_replay import BagReplay
+
+    info = bag_info(bag)
+    tp = {t: m for t, (m, _) in info["topics"].items()}
+    odom = {t: tp[t] for t in ("/odom", "/encoders", "/fog") if t in tp}
+    scan = {"/scan": tp["/scan"]} if "/scan" in tp else {}
+    if domain_id is None:
+        domain_id = int(os.environ.get("ROS_DOMAIN_ID", "0"))
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain_id)
+    nodes = []
+    ex = make_executor(executor, ctx)
+    try:
+        Sink = _sink_class()
+        sinks = [Sink("predictor", {**scan, **odom}, True, ctx), Sink("correlator", scan, False, ctx),
+                 Sink("mapper", scan, False, ctx)]
+        replay = BagReplay(context=ctx, parameter_overrides=[Parameter("bag", value=str(bag)),
+                                                             Parameter("rate", value="max")])
+        nodes = [*sinks, replay]
+        for n in nodes:
+            ex.add_node(n)
+        expected = {t: c for t, (_, c) in info["topics"].items()}
+        while not replay.started:
+            ex.spin_once(timeout_sec=0.05)
+        t0 = time.monotonic()
+        while not (replay.done and sinks[0].counts.get("/scan", 0) >= expected.get("/scan", 0)
+                   and all(sinks[0].counts[t] >= expected[t] for t in sinks[0].counts)):
+            ex.spin_once(timeout_sec=0.05)
+            if time.monotonic() - t0 > timeout_s:
+                raise TimeoutError(f"replay-only run of {bag} did not finish in {timeout_s:.0f} s")
+        wall = time.monotonic() - t0
+        received = sinks[0].counts
+    finally:
+        ex.shutdown()
+        for n in nodes:
+            n.destroy_node()
+        if ctx.ok():
+            rclpy.shutdown(context=ctx)
+    dur = info["duration_ns"] / 1e9
+    return {"bag": str(bag), "bag_duration_s": round(dur, 3), "wall_time_s": round(wall, 3),
+            "real_time_factor": round(dur / wall, 2) if wall > 0 else None,
+            "messages": sum(expected.values()), "received_by_predictor_sink": dict(received),
+            "executor": executor}

@@ -1,0 +1,83 @@
+"""The per-scan fast paths agree with the general code they shortcut."""
+import math
+
+import numpy as np
+import pytest
+
+from pf_slam_nodes.core.config import FilterConfig, GridConfig, LaserConfig
+from pf_slam_nodes.core.metrics import map_f1
+from pf_slam_nodes.core.motion import compose, integrate_diff_drive, relative_pose, wheel_odometry
+from pf_slam_nodes.core.odometry import GyroBuffer, WheelOdometryIntegrator
+from pf_slam_nodes.core.stages import MappingStage
+
+
+def test_scalar_compose_and_relative_pose_match_the_batched_form():
+    rng = np.random.default_rng(0)
+    a = rng.uniform(-5, 5, (50, 3))
+    b = rng.uniform(-5, 5, (50, 3))
+    batch_c, batch_r = compose(a, b), relative_pose(a, b)
+    for i in range(50):
+        np.testing.assert_allclose(compose(a[i], b[i]), batch_c[i], atol=1e-12)
+        np.testing.assert_allclose(relative_pose(a[i], b[i]), batch_r[i], atol=1e-12)
+        np.testing.assert_allclose(compose(a[i], relative_pose(a[i], b[i]))[:2], b[i, :2], atol=1e-9)
+
+
+def test_wheel_integrator_scalar_step_matches_wheel_odometry_and_midpoint_rule():
+    w = WheelOdometryIntegrator(0.62, 0.63, 1.5)
+    pose = np.zeros(3)
+    rng = np.random.default_rng(1)
+    left = right = 0.0
+    w.step(left, right)
+    for _ in range(200):
+        dl, dr = rng.uniform(0, 0.2, 2)
+        left, right = left + dl, right + dr
+        got = w.step(left, right)
+        d, dyaw = wheel_odometry(dl, dr, 0.62, 0.63, 1.5)
+        pose = integrate_diff_drive(pose, d, dyaw)
+        np.testing.assert_allclose(got, pose, atol=1e-9)
+
+
+def test_gyro_buffer_grows_and_trims_without_changing_sums():
+    g = GyroBuffer()
+    stamps = np.arange(1, 30001, dtype=np.int64) * 1_000_000  # 30 s at 1 kHz
+    dy = np.sin(np.arange(stamps.size) * 1e-3) * 1e-4
+    cum = np.concatenate([[0.0], np.cumsum(dy)])
+    for k in range(0, stamps.size, 10):  # batches of 10, as FogBatch
+        g.add(stamps[k:k + 10], dy[k:k + 10])
+        if k % 5000 == 0 and k:
+            g.trim(int(stamps[k - 12000])) if k >= 12000 else None
+    assert g.last_stamp == stamps[-1]
+    t0, t1 = int(stamps[20000]), int(stamps[25000])
+    assert g.yaw_between(t0, t1) == pytest.approx(cum[25001] - cum[20001], abs=1e-12)
+    g.add(stamps[:5], dy[:5])  # old stamps: dropped and counted
+    assert g.out_of_order == 5
+
+
+def test_mapping_stage_keeps_the_exported_occupancy_current():
+    ms = MappingStage(FilterConfig(), GridConfig(size_x_m=40.0, size_y_m=40.0), LaserConfig())
+    angles = np.linspace(-math.pi / 2, math.pi / 2, 181)
+    for k in range(5):
+        ms.integrate(np.array([0.5 * k, 0.1 * k, 0.05 * k]), np.full(181, 4.0 + k), angles, 0.0, 30.0)
+        occ, _, _ = ms.map_occupancy()
+        np.testing.assert_array_equal(occ, ms.grid.occupancy(ms.grid.touched_bounds))
+
+
+def test_map_f1_perfect_shifted_and_empty():
+    gt = np.zeros((60, 60), np.int8)
+    gt[20:40, 20:40] = 100  # a building; its outline is what a lidar sees
+    est = np.full_like(gt, -1)
+    est[15:45, 15:45] = 0
+    est[20, 20:40] = est[39, 20:40] = 100
+    est[20:40, 20] = est[20:40, 39] = 100
+    perfect = map_f1(est, 0.2, (0.0, 0.0), gt, 0.2, (0.0, 0.0))
+    assert perfect["precision"] == 1.0 and perfect["recall"] == 1.0 and perfect["f1"] == 1.0
+    shifted = map_f1(est, 0.2, (1.0, 0.0), gt, 0.2, (0.0, 0.0))  # the map 1 m off
+    assert shifted["f1"] < 0.6
+    none = map_f1(np.full_like(gt, -1), 0.2, (0.0, 0.0), gt, 0.2, (0.0, 0.0))
+    assert none["f1"] == 0.0 and none["observed_edge_cells"] == 0
+
+
+def test_filter_config_pose_estimate_is_checked():
+    assert FilterConfig(pose_estimate="mean").pose_estimate == "mean"
+    with pytest.raises(ValueError, match="pose_estimate"):
+        FilterConfig(pose_estimate="median")
