@@ -81,3 +81,17 @@ def test_filter_config_pose_estimate_is_checked():
     assert FilterConfig(pose_estimate="mean").pose_estimate == "mean"
     with pytest.raises(ValueError, match="pose_estimate"):
         FilterConfig(pose_estimate="median")
+
+
+def test_odometry_peek_consumes_nothing():
+    from pf_slam_nodes.core.odometry import OdometryBuffer
+    for sync in ("exact", "interpolate"):
+        b = OdometryBuffer(sync)
+        for k in range(5):
+            b.add(100 * k, np.array([k, 0.0, 0.0]))
+        for t in (200, 200, 250, 400):
+            want = b.peek(t, final=True)
+            again = b.peek(t, final=True)
+            got = b.lookup(t, final=True)
+            np.testing.assert_array_equal(want, again)
+            np.testing.assert_array_equal(want, got)

@@ -59,6 +59,19 @@ class OdometryBuffer:
         """True when the odometry for the next (+ ``ahead``) scan with this stamp has arrived."""
         return self._scan_seen[stamp_ns] + ahead < len(self._exact.get(stamp_ns, ()))
 
+    def peek(self, stamp_ns: int, final: bool = False) -> Optional[np.ndarray]:
+        """What :meth:`lookup` would return now, without consuming anything."""
+        cursor, missing = self._cursor, self.missing
+        seen = self._scan_seen[stamp_ns] if stamp_ns in self._scan_seen else None
+        try:
+            return self.lookup(stamp_ns, final)
+        finally:
+            self._cursor, self.missing = cursor, missing
+            if seen is None:
+                self._scan_seen.pop(stamp_ns, None)
+            else:
+                self._scan_seen[stamp_ns] = seen
+
     def lookup(self, stamp_ns: int, final: bool = False) -> Optional[np.ndarray]:
         """Odometry pose at a scan stamp, or None when it has not arrived yet.
 

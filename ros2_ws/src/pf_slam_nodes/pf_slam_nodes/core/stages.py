@@ -69,13 +69,23 @@ class PredictionStage:
             self.particles[:] = odom
             self.odom_at_update = odom.copy()
             return True, np.zeros(3)
-        fc = self.filter_cfg
-        delta = relative_pose(self.odom_at_update, odom)
-        if math.hypot(delta[0], delta[1]) < fc.min_travel_m and abs(delta[2]) < fc.min_rotation_rad:
+        update, delta = self.gate(odom)
+        if not update:
             return False, delta
         self.particles = sample_odometry_motion(self.particles, delta, self.motion_cfg, self.rng)
         self.odom_at_update = odom.copy()
         return True, delta
+
+    def gate(self, odom_pose: np.ndarray) -> tuple[bool, np.ndarray]:
+        """Would :meth:`predict` update at this odometry pose? -> (update?, increment since the
+        last correction). No side effects: the predictor node asks this while a correction is
+        still in flight, to pose the pass-through scans behind it without waiting."""
+        if self.odom_at_update is None:
+            return True, np.zeros(3)
+        fc = self.filter_cfg
+        delta = relative_pose(self.odom_at_update, np.asarray(odom_pose, dtype=np.float64).reshape(3))
+        return bool(math.hypot(delta[0], delta[1]) >= fc.min_travel_m
+                    or abs(delta[2]) >= fc.min_rotation_rad), delta
 
     def set_corrected(self, particles: np.ndarray, log_weights: np.ndarray) -> None:
         self.particles = np.asarray(particles, dtype=np.float64).reshape(-1, 3).copy()

@@ -55,7 +55,7 @@ class BagReplay(Node):
         if not self.bag:
             raise ValueError("parameter 'bag' (path of a rosbag2) is required")
         self.rate = parse_rate(str(param(self, "rate", "max")))
-        self.max_in_flight = param(self, "max_in_flight", 20)
+        self.max_in_flight = param(self, "max_in_flight", 100)
         self.scan_topic = param(self, "scan_topic", "/scan")
         self.clock_period_ns = int(param(self, "clock_period_s", 0.01) * 1e9)
         self.ready_nodes: set[str] = set()

@@ -12,7 +12,10 @@ than filter.min_travel_m / filter.min_rotation_rad since the last correction, th
 it goes out on pose at once, without a message to the correlator (the car's 100 Hz lidar is
 corrected every ~2 m: most scans are pass-throughs). Otherwise the particles are moved by the
 noisy odometry increment and sent with update=true; the scan's pose goes out when the corrected
-set comes back on particles/updated, and the next scan waits for it. The last scan of the bag
+set comes back on particles/updated. While a correction is in flight, the pass-through scans
+behind it are gated and queued (their poses need the corrected pose, their increments do not);
+only the next scan that needs a correction waits. So with one process per node the replay and
+the predictor keep going while the correlator works. The last scan of the bag
 is always sent on particles/predicted (update=false if it is a pass-through) so the correlator
 and the mapper see the end of the run.
 """
@@ -52,6 +55,7 @@ class Predictor(Node):
         self.scans_expected: int | None = None
         self.corrected_pose = np.zeros(3)  # pose of the last corrected scan
         self.last_pass_through: tuple | None = None  # (index, stamp, odom, delta)
+        self.deferred: deque[tuple] = deque()  # pass-throughs behind the correction in flight
         self.end_sent = False
         self.odom_topic = self.resolve_topic_name(topics.ODOM if source == "odom" else topics.ENCODERS)
         self.scan_topic = self.resolve_topic_name(topics.SCAN)
@@ -145,6 +149,8 @@ class Predictor(Node):
             self.corrected_pose = np.array(msg.pose, dtype=np.float64)
             self._publish_pose(self.corrected_pose, convert.stamp_to_ns(msg.header.stamp))
             self.waiting_for = None
+            while self.deferred:
+                self._pass_through(*self.deferred.popleft())
             self._drain()
 
     def _on_replay_status(self, msg: ReplayStatus) -> None:
@@ -158,22 +164,30 @@ class Predictor(Node):
     def _drain(self) -> None:
         if hasattr(self, "encoders"):
             self._integrate_encoders()
-        while self.scans and self.waiting_for is None:
+        while self.scans:
             index, stamp = self.scans[0]
             # a scan whose exact odometry never comes must not block the ones behind it
             # end of stream: every odometry message of the bag is here, none will follow
             final = (self.odom_expected is not None and self.odom_received >= self.odom_expected) or (
                 self.odom.sync == "exact" and len(self.scans) > 1
                 and self.odom.has_exact(self.scans[1][1], ahead=int(self.scans[1][1] == stamp)))
+            if self.waiting_for is not None:
+                # a correction is in flight: queue pass-throughs, stop at the next update
+                odom = self.odom.peek(stamp, final=final)
+                if odom is None or self.stage.gate(odom)[0]:
+                    break
             odom = self.odom.lookup(stamp, final=final)
             if odom is None:
-                return
+                break
             self.scans.popleft()
             self._predict(index, stamp, odom)
         self.odom.trim()
         self._maybe_send_end()
 
     def _predict(self, index: int, stamp: int, odom: np.ndarray) -> None:
+        if self.waiting_for is not None:
+            self.deferred.append((index, stamp, odom, self.stage.gate(odom)[1]))
+            return
         update, delta = self.stage.predict(odom)
         if update:
             self.pub.publish(convert.particles_to_msg(
@@ -181,6 +195,9 @@ class Predictor(Node):
                 frame_id=self.map_frame, scan_index=index, update=True, odom_pose=odom))
             self.waiting_for = index
             return
+        self._pass_through(index, stamp, odom, delta)
+
+    def _pass_through(self, index: int, stamp: int, odom: np.ndarray, delta: np.ndarray) -> None:
         self._publish_pose(compose(self.corrected_pose, delta), stamp)
         self.last_pass_through = (index, stamp, odom, delta)
 
@@ -191,7 +208,7 @@ class Predictor(Node):
         """Once the last scan of the bag is posed as a pass-through, send it on as the end of
         the run: a set without particles (update=false) that the correlator and mapper pass on."""
         last = self.last_pass_through
-        if (self.end_sent or self.scans_expected is None or last is None
+        if (self.waiting_for is not None or self.end_sent or self.scans_expected is None or last is None
                 or last[0] != self.scans_expected - 1):
             return
         index, stamp, odom, delta = last
