@@ -68,8 +68,12 @@ def build_parser() -> argparse.ArgumentParser:
     from .sim.car import add_arguments as add_car_arguments
     add_car_arguments(sc)
 
-    b = sub.add_parser("bench", help="benchmarks: ParticleArray layout; the graph on the CARMEN logs")
-    b.add_argument("what", choices=["messages", "carmen"])
+    b = sub.add_parser("bench", help="benchmarks: ParticleArray layout; the graph on the CARMEN logs "
+                       "and on simulated car drives; the replay-only ceiling of a bag")
+    b.add_argument("what", choices=["messages", "carmen", "car", "ceiling"])
+    b.add_argument("--bag", help="ceiling: the bag to replay")
+    b.add_argument("--duration", type=float, default=300.0, help="car: simulated drive length (s)")
+    b.add_argument("--particles", type=int, help="car: filter.num_particles (default: kaist.yaml)")
     b.add_argument("--data", default="../shared/data", help="datasets folder (carmen/ inside)")
     b.add_argument("--out", default="runs/bench", help="where bags, runs and tables go")
     b.add_argument("--datasets", nargs="*", help="subset of intel_910 intel_2726 mit-csail")
@@ -130,6 +134,14 @@ def _dispatch(args: argparse.Namespace) -> int:
             print("\nFOG at 1 kHz, publish + receive, wall s per s of data (one executor):")
             print("| per-sample Vector3Stamped | FogBatch of 10 |\n|---:|---:|")
             print(f"| {fog['vector3']:.3f} | {fog['batch']:.3f} |")
+        elif args.what == "car":
+            from .bench import car
+            print(car.main(args.out, tuple(args.seeds), args.duration, args.processes, args.particles))
+        elif args.what == "ceiling":
+            from .bench.ceiling import replay_ceiling
+            if not args.bag:
+                raise ValueError("bench ceiling needs --bag BAG")
+            print(json.dumps(replay_ceiling(args.bag), indent=2))
         else:
             from .bench import carmen
             print(carmen.main(args.data, args.out, args.datasets, tuple(args.seeds), args.processes))
