@@ -189,3 +189,11 @@ def test_car_sample_encoders_fog_tilted_lidar(tmp_path, ros_domain):
     assert ev["ate"]["rmse"] < 0.2, ev["ate"]
     occ, _, _ = read_map(tmp_path / "car" / "map.yaml")
     assert (occ >= 65).sum() > 1000  # facades mapped from the tilted scans
+    # the texture node ran on the bag's 2 stereo pairs; every pair is accounted for
+    t = s["texture"]
+    assert t["frames_received"] == 2
+    assert t["frames_processed"] + t["frames_skipped"] + t["frames_dropped"] == 2 and t["frames_processed"] >= 1
+    assert t["files"] == ["texture.png", "texture_overlay.png"] and t["cells_coloured"] > 5000
+    import cv2
+    tex = cv2.imread(str(tmp_path / "car" / "texture.png"))
+    assert tex.shape[:2] == occ.shape  # the /map geometry

@@ -4,7 +4,7 @@ from glob import glob
 from setuptools import find_packages, setup
 
 PACKAGE = "pf_slam_nodes"
-NODES = ["bag_replay", "predictor", "correlator", "mapper"]
+NODES = ["bag_replay", "predictor", "correlator", "mapper", "texture"]
 
 setup(
     name=PACKAGE,

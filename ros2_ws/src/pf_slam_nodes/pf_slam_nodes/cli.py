@@ -49,6 +49,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--executor", choices=["single", "events"], default="events",
                    help="executor of the single-process graph: SingleThreadedExecutor or rclpy's "
                         "experimental C++ EventsExecutor (same result)")
+    r.add_argument("--no-texture", action="store_true",
+                   help="do not run the texture node (stereo topics in the bag are then ignored)")
     r.add_argument("--snapshot-every", type=int, default=200, help="snapshot PNG every N scans (0: none)")
 
     e = sub.add_parser("eval", help="ATE/RPE against a reference trajectory; Kümmerle relations error")
@@ -67,6 +69,11 @@ def build_parser() -> argparse.ArgumentParser:
     sc = sub.add_parser("simulate", help="write a seeded KAIST-layout car dataset with ground truth")
     from .sim.car import add_arguments as add_car_arguments
     add_car_arguments(sc)
+
+    t = sub.add_parser("texture", add_help=False,
+                       help="texture map offline: a simulated drive vs its floor truth, or the real stereo pair "
+                            "(pf-slam texture {sim DATASET | real KAIST_DIR} --out OUT; --help for more)")
+    t.add_argument("args", nargs=argparse.REMAINDER)
 
     b = sub.add_parser("bench", help="benchmarks: ParticleArray layout; the graph on the CARMEN logs "
                        "and on simulated car drives; the replay-only ceiling of a bag")
@@ -107,6 +114,9 @@ def _dispatch(args: argparse.Namespace) -> int:
             rep = convert.convert_mines(args.dat, args.out_bag, storage=args.storage)
         print(rep.summary())
         return 0
+    if args.command == "texture":
+        from .bench.texture import main as texture_main
+        return texture_main(args.args)
     if args.command == "run":
         from .graph import run_cli
         return run_cli(args)

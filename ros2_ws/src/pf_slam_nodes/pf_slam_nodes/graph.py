@@ -13,7 +13,6 @@ import resource
 import signal
 import subprocess
 import sys
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,6 +26,7 @@ from .io.mapfile import render_snapshot, write_map
 from .io.trajectory import write_tum
 
 NODE_NAMES = ("bag_replay", "predictor", "correlator", "mapper")
+TEXTURE_INPUT = "/stereo/left/image_raw"  # a bag with it gets the texture node
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "config"
 
 
@@ -170,7 +170,7 @@ class _Recorder:
     """Collects per-scan poses and the latest /map; renders snapshots; prints progress."""
 
     def __init__(self, node, out_dir: Path, scans_total: int, bag_duration_s: float,
-                 snapshot_every: int, progress: bool) -> None:
+                 snapshot_every: int, progress: bool, texture: bool = False) -> None:
         from geometry_msgs.msg import PoseStamped
         from nav_msgs.msg import OccupancyGrid
         from pf_slam_interfaces.msg import ParticleArray, ReplayStatus
@@ -186,13 +186,35 @@ class _Recorder:
         self.poses: list[np.ndarray] = []
         self.updates = 0
         self.map_msg = None
+        self.map_meta = None
         self.replay_counts: dict[str, int] | None = None
+        self.texture_msg = None
+        self.texture_meta = None
+        self.texture_status: dict | None = None
         self.t0 = time.monotonic()
         self._last_print = 0.0
         node.create_subscription(PoseStamped, topics.POSE, self._on_pose, qos.pipeline())
         node.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         node.create_subscription(OccupancyGrid, topics.MAP, self._on_map, qos.latched())
         node.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
+        if texture:
+            from nav_msgs.msg import MapMetaData
+            from sensor_msgs.msg import Image
+            from std_msgs.msg import String
+
+            from .nodes.texture import TEXTURE, TEXTURE_METADATA, TEXTURE_STATUS
+            node.create_subscription(Image, TEXTURE, self._on_texture, qos.latched())
+            node.create_subscription(MapMetaData, TEXTURE_METADATA, self._on_texture_meta, qos.latched())
+            node.create_subscription(String, TEXTURE_STATUS, self._on_texture_status, qos.latched())
+
+    def _on_texture(self, msg) -> None:
+        self.texture_msg = msg
+
+    def _on_texture_meta(self, msg) -> None:
+        self.texture_meta = msg
+
+    def _on_texture_status(self, msg) -> None:
+        self.texture_status = json.loads(msg.data)
 
     def _on_replay_status(self, msg) -> None:
         self.replay_counts = dict(zip(msg.topics, (int(c) for c in msg.counts)))
@@ -256,7 +278,10 @@ def _make_node(name: str, context, overrides: dict[str, Any]):
     from .nodes.correlator import Correlator
     from .nodes.mapper import Mapper
     from .nodes.predictor import Predictor
-    cls = {"bag_replay": BagReplay, "predictor": Predictor, "correlator": Correlator, "mapper": Mapper}[name]
+    if name == "texture":
+        from .nodes.texture import TextureNode as cls
+    else:
+        cls = {"bag_replay": BagReplay, "predictor": Predictor, "correlator": Correlator, "mapper": Mapper}[name]
     params = [Parameter(k, value=v) for k, v in overrides.items()]
     return cls(context=context, parameter_overrides=params)
 
@@ -265,22 +290,28 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         processes: str = "single", overrides: dict[str, dict[str, Any]] | None = None,
         snapshot_every: int = 200, progress: bool = True, idle_timeout_s: float = 60.0,
         drain_timeout_s: float = 5.0,
-        domain_id: int | None = None, executor: str = "events") -> RunResult:
+        domain_id: int | None = None, executor: str = "events", texture: bool = True,
+        texture_timeout_s: float = 120.0) -> RunResult:
     """Replay `bag` through the graph and write the outputs into `out_dir`; returns the summary."""
     import rclpy
 
     if processes not in ("single", "multi"):
         raise RunError(f"--processes must be 'single' or 'multi', got {processes!r}")
     info = bag_info(bag)
+    texture = texture and TEXTURE_INPUT in info["topics"]
+    node_names = NODE_NAMES + (("texture",) if texture else ())
     layers = [detect_inputs(bag, info)]
     if params_file:
         layers.append(load_params(params_file))
     layers.append({"bag_replay": {"bag": str(bag), "rate": str(rate)},
                    "correlator": {"expected_observers": 1},  # the recorder below
-                   "predictor": {"expected_observers": 1}})
+                   "predictor": {"expected_observers": 1},
+                   "texture": {"expected_observers": 1}})
+    if texture:
+        layers[-1]["bag_replay"]["wait_for"] = ["predictor", "correlator", "mapper", "texture"]
     if overrides:
         layers.append(overrides)
-    per_node = {n: node_params(layers, n) for n in NODE_NAMES}
+    per_node = {n: node_params(layers, n) for n in node_names}
     out = Path(out_dir)
     (out / "snapshots").mkdir(parents=True, exist_ok=True)
     scans_total = info["topics"]["/scan"][1]
@@ -299,12 +330,15 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         nodes.append(rec_node)
         ex = make_executor(executor, ctx)
         ex.add_node(rec_node)
-        rec = _Recorder(rec_node, out, scans_total, bag_duration_s, snapshot_every, progress)
+        rec = _Recorder(rec_node, out, scans_total, bag_duration_s, snapshot_every, progress, texture)
+        texture_node = None
         if processes == "single":
-            for name in NODE_NAMES:
+            for name in node_names:
                 node = _make_node(name, ctx, per_node[name])
                 nodes.append(node)
                 ex.add_node(node)
+                if name == "texture":
+                    texture_node = node
         else:
             children = _spawn(per_node, domain_id, out)
         state = {"last_progress": time.monotonic(), "last_count": -1}
@@ -334,7 +368,14 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
                 outcome.set_result(RunError(f"no progress for {idle_timeout_s:.0f} s: "
                                             f"{len(rec.poses)}/{scans_total} scans processed"))
             elif finished():
-                outcome.set_result(None)
+                slam_done.setdefault("t", time.monotonic())
+                # the texture node finishes on its own after the last pair (it may skip pairs
+                # under load, never holds the SLAM nodes back); wait for its final texture
+                if (not texture or (rec.texture_status or {}).get("final")
+                        or time.monotonic() - slam_done["t"] > texture_timeout_s):
+                    outcome.set_result(None)
+
+        slam_done: dict[str, float] = {}
 
         from rclpy.task import Future
         outcome = Future()
@@ -343,8 +384,11 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
             ex.spin_until_future_complete(outcome, timeout_sec=1.0)
         if isinstance(outcome.result(), RunError):
             raise outcome.result()
-        wall = time.monotonic() - t_start
+        wall = (slam_done["t"] if slam_done else time.monotonic()) - t_start
         rec.print_progress(final=True)
+        texture_out = None
+        if texture_node is not None and texture_node.wait_idle(30.0):
+            texture_out = texture_node.render()  # in the final /map geometry
         scans_published = (rec.replay_counts or {}).get("/scan", scans_total)
     finally:
         for c in children:
@@ -370,6 +414,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     poses = np.array(rec.poses)
     write_tum(out / "trajectory.tum", stamps / 1e9, poses)
     rec.snapshot("final.png")
+    texture_summary = _write_texture(out, rec, texture_out, occ, res, origin) if texture else None
     peak = max(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
                resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss) / 1024.0
     summary = {
@@ -389,8 +434,39 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         "peak_rss_mb": round(peak, 1),
         "complete": True,
     }
+    if texture_summary is not None:
+        summary["texture"] = texture_summary
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return RunResult(summary, rec.stamps, rec.poses)
+
+
+def _write_texture(out: Path, rec: _Recorder, rendered, occ: np.ndarray, res: float,
+                   origin) -> dict:
+    """texture.png (+ texture_overlay.png with the occupancy when the geometries agree) and the
+    texture node's counters for summary.json."""
+    from .core.texture import write_texture_pngs
+    from .nodes.texture import image_array
+    rgb = covered = None
+    same_geometry = False
+    if rendered is not None:  # one process: rendered here in the final /map geometry
+        rgb, covered, meta = rendered
+        same_geometry = True
+    elif rec.texture_msg is not None:  # one process per node: the node's last texture
+        rgb = np.array(image_array(rec.texture_msg))
+        covered = rgb.any(axis=2)
+        m = rec.texture_meta
+        same_geometry = (m is not None and (int(m.height), int(m.width)) == occ.shape
+                         and abs(m.resolution - res) < 1e-9
+                         and abs(m.origin.position.x - origin[0]) < 1e-6
+                         and abs(m.origin.position.y - origin[1]) < 1e-6)
+    files: list[str] = []
+    if rgb is not None:
+        files = [p.name for p in write_texture_pngs(out, rgb, covered, occ if same_geometry else None)]
+    status = dict(rec.texture_status or {})
+    status.pop("final", None)
+    status["files"] = files
+    status["cells_coloured"] = int(np.count_nonzero(covered)) if covered is not None else 0
+    return status
 
 
 def _default_particles() -> int:
@@ -405,9 +481,8 @@ def _spawn(per_node: dict[str, dict[str, Any]], domain_id: int, out: Path) -> li
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     procs = []
-    tmp = Path(tempfile.mkdtemp(prefix="pf_slam_params_"))
-    for name in NODE_NAMES:
-        pfile = tmp / f"{name}.yaml"
+    for name in per_node:  # parameter files next to the logs: what each process ran with
+        pfile = logs / f"{name}.params.yaml"
         pfile.write_text(yaml.safe_dump({name: {"ros__parameters": unflatten(per_node[name])}}))
         log = open(logs / f"{name}.log", "w")
         procs.append(subprocess.Popen(
@@ -418,10 +493,16 @@ def _spawn(per_node: dict[str, dict[str, Any]], domain_id: int, out: Path) -> li
 
 def run_cli(args: Any, log: Callable[[str], None] = print) -> int:
     res = run(args.bag, args.out, params_file=args.params, rate=args.rate, processes=args.processes,
-              overrides=_cli_overrides(args), snapshot_every=args.snapshot_every, executor=args.executor)
+              overrides=_cli_overrides(args), snapshot_every=args.snapshot_every, executor=args.executor,
+              texture=not getattr(args, "no_texture", False))
     s = res.summary
     log(f"{s['scans_processed']} scans ({s['scans_corrected']} corrected), {s['scans_dropped']} dropped, "
         f"wall {s['wall_time_s']:.1f} s, RTF {s['real_time_factor']}x; outputs in {args.out}")
+    if "texture" in s:
+        t = s["texture"]
+        log(f"texture: {t.get('frames_processed')} of {t.get('frames_received')} stereo pairs used "
+            f"({t.get('frames_skipped')} skipped under load, {t.get('frames_dropped')} without a pose), "
+            f"{t['cells_coloured']} cells coloured; {', '.join(t['files']) or 'no image'}")
     return 0
 
 

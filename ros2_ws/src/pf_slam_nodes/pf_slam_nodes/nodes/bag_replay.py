@@ -59,6 +59,8 @@ class BagReplay(Node):
         self.scan_topic = param(self, "scan_topic", "/scan")
         self.clock_period_ns = int(param(self, "clock_period_s", 0.01) * 1e9)
         self.ready_nodes: set[str] = set()
+        # the nodes whose pf_slam/ready announcement the replay waits for
+        self.wait_for = set(param(self, "wait_for", ["predictor", "correlator", "mapper"]))
         info = bag_info(self.bag)
         self.info = info
         self.scans_in_bag = info["topics"].get(self.scan_topic, ("", 0))[1]
@@ -95,7 +97,7 @@ class BagReplay(Node):
         """True once nothing published can be lost: every stage announced that its outputs are
         matched (pf_slam/ready), and the scan topic has its 3 subscribers matched here."""
         scan_pub = self.publishers_.get(self.scan_topic)
-        return (self.ready_nodes >= {"predictor", "correlator", "mapper"}
+        return (self.ready_nodes >= self.wait_for
                 and (scan_pub is None or scan_pub.get_subscription_count() >= 3))
 
     def pump(self, budget: int = 200) -> None:

@@ -1,0 +1,481 @@
+"""texture: colours the map's floor from the stereo camera (core: ``core/texture.py``).
+
+Subscribes
+----------
+* ``/stereo/left/image_raw``, ``/stereo/right/image_raw`` (``sensor_msgs/Image``; Bayer
+  ``bayer_rggb8`` as ``pf-slam convert kaist`` writes, or ``rgb8`` / ``bgr8`` / ``mono8``):
+  paired by exact header stamp.
+* ``/stereo/left/camera_info``, ``/stereo/right/camera_info`` (``sensor_msgs/CameraInfo``): the
+  first of each is the camera model (``k, d, r, p``), unless ``calibration_dir`` is set.
+* ``/tf_static`` (``tf2_msgs/TFMessage``): ``base_frame -> <left image frame_id>`` is the
+  camera mounting, unless ``camera_extrinsic`` or ``calibration_dir`` is set.
+* ``pose`` (``geometry_msgs/PoseStamped``, map frame, one per scan): the vehicle pose, linearly
+  interpolated at each image stamp; a pair waits until a pose at or after its stamp has
+  arrived. A pair older than the oldest buffered pose is dropped (``frames_dropped``).
+* ``map_metadata`` (``nav_msgs/MapMetaData``, latched, as the mapper publishes it with every
+  ``map``), or with ``use_map_metadata:=false`` ``map`` (``nav_msgs/OccupancyGrid``): only the
+  map's geometry (origin, resolution, size) is used, as the geometry of the texture.
+* ``pf_slam/replay_status`` (latched): at the end of a bag, once nothing is left to do (or
+  ``final_idle_s`` passed without progress), the final texture is published once more and
+  pairs still waiting for a pose are dropped.
+
+Publishes
+---------
+* ``texture`` (``sensor_msgs/Image``, ``rgb8``, latched; on a timer every ``publish_period_s``
+  and by :meth:`TextureNode.publish_texture`): the texture in the geometry of the last ``map``
+  received, in the ``OccupancyGrid`` layout: ``width`` = ``map.info.width``, ``height`` =
+  ``map.info.height``, **row 0 = the map's first row = lowest y** (the image looks upside
+  down in an image viewer; flip the rows for north up). Pixel ``(row, col)`` is the cell whose
+  centre is ``x = origin.x + (col + 0.5) * resolution``, ``y = origin.y + (row + 0.5) *
+  resolution`` (map frame; the map origin has no rotation). ``(0, 0, 0)`` = no colour
+  (observed cells are at least ``(1, 1, 1)``). ``header.frame_id`` = ``map_frame``,
+  ``header.stamp`` = the stamp of the last pair processed. Before a map arrives the texture's
+  own extent at ``texture.cell_m`` is published.
+* ``texture_metadata`` (``nav_msgs/MapMetaData``, latched): that geometry (resolution, width,
+  height, origin) of every ``texture`` image, published with it.
+* ``pf_slam/texture_status`` (``std_msgs/String``, latched): JSON counters
+  ``frames_received`` (complete pairs), ``frames_processed``, ``frames_skipped`` (replaced
+  by a newer pair while queued: load), ``frames_dropped`` (no pose / calibration for them),
+  ``ms_per_frame``, ``final``.
+
+Threading: the subscription callbacks only store messages; one worker thread does the
+debayering, stereo matching, accumulation and the timer's rendering, so the node never blocks
+an executor it shares with the SLAM nodes. Ready pairs wait in a queue of ``queue_depth``
+(default 1): a new pair arriving while the queue is full replaces the oldest queued one
+(``frames_skipped``). Pairs waiting for their pose are kept up to ``max_pending_pairs``
+(older ones are skipped too).
+
+Parameters: ``texture.<field>`` for every :class:`pf_slam_nodes.core.texture.TextureConfig`
+field, plus the ones declared in ``__init__``.
+"""
+from __future__ import annotations
+
+import array
+import dataclasses
+import json
+import os
+import threading
+import time
+from collections import deque
+from typing import Any, Optional
+
+import numpy as np
+from nav_msgs.msg import MapMetaData, OccupancyGrid
+from pf_slam_interfaces.msg import ReplayStatus
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import String
+from geometry_msgs.msg import PoseStamped
+from tf2_msgs.msg import TFMessage
+
+from ..core.texture import StereoRig, StereoTexturer, TextureConfig, TextureMap, interpolate_poses
+from ..io.trajectory import quat_to_yaw
+from ..ros import convert, qos, topics
+from .common import announce_when_matched, param, run_node
+
+TEXTURE = "texture"
+TEXTURE_METADATA = "texture_metadata"
+TEXTURE_STATUS = "pf_slam/texture_status"
+
+
+def declare_texture_config(node: Node, prefix: str = "texture") -> TextureConfig:
+    """Declare ``<prefix>.<field>`` for every ``TextureConfig`` field; return the config."""
+    values: dict[str, Any] = {}
+    for f in dataclasses.fields(TextureConfig):
+        default = f.default
+        p = node.declare_parameter(f"{prefix}.{f.name}", default,
+                                   ParameterDescriptor(dynamic_typing=True))
+        v = p.value
+        if isinstance(default, float) and isinstance(v, int) and not isinstance(v, bool):
+            v = float(v)
+        values[f.name] = v
+    try:
+        return TextureConfig.from_dict(values)
+    except ValueError as e:
+        raise ValueError(f"node {node.get_name()}: parameter section '{prefix}': {e}") from None
+
+
+def image_array(msg: Image) -> np.ndarray:
+    """``sensor_msgs/Image`` (8-bit, 1 or 3 channels) -> ``(H, W)`` / ``(H, W, C)`` uint8."""
+    enc = msg.encoding.lower()
+    ch = 3 if enc in ("rgb8", "bgr8") else 1
+    if enc not in ("rgb8", "bgr8", "mono8", "8uc1") and not enc.startswith("bayer_"):
+        raise ValueError(f"unsupported image encoding {msg.encoding!r}")
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    buf = np.frombuffer(msg.data, dtype=np.uint8)
+    if step < w * ch or buf.size < h * step:
+        raise ValueError(f"image {w} x {h} ({msg.encoding}) with step {step} has {buf.size} bytes")
+    a = buf[: h * step].reshape(h, step)[:, : w * ch]
+    return a.reshape(h, w, ch) if ch == 3 else a
+
+
+def _quat_matrix(q: Any) -> np.ndarray:
+    x, y, z, w = q.x, q.y, q.z, q.w
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+@dataclasses.dataclass
+class _Pair:
+    stamp_ns: int
+    left: Image
+    right: Image
+    pose: Optional[np.ndarray] = None
+
+
+class TextureNode(Node):
+    """The texture node (see the module docstring).
+
+    Attributes
+    ----------
+    frames_received, frames_processed, frames_skipped, frames_dropped : int
+        Pair counters (``received = processed + skipped + dropped + in flight``).
+    texmap : TextureMap
+        The accumulated texture (guarded by ``lock``).
+    """
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("texture", **kwargs)
+        self.cfg = declare_texture_config(self)
+        self.map_frame = param(self, "map_frame", "map")
+        self.base_frame = param(self, "base_frame", "base_link")
+        period = param(self, "publish_period_s", 1.0)
+        self.calibration_dir = param(self, "calibration_dir", "")
+        ext = self.declare_parameter("camera_extrinsic", [0.0] * 12,
+                                     ParameterDescriptor(dynamic_typing=True)).value
+        self.queue_depth = param(self, "queue_depth", 1)
+        self.max_pending_pairs = param(self, "max_pending_pairs", 10)
+        self.final_idle_s = param(self, "final_idle_s", 2.0)
+        self.worker_nice = param(self, "worker_nice", 10)
+        pose_buffer = param(self, "pose_buffer_size", 3000)
+        left_topic = param(self, "left_topic", "/stereo/left/image_raw")
+        right_topic = param(self, "right_topic", "/stereo/right/image_raw")
+        left_info = param(self, "left_info_topic", "/stereo/left/camera_info")
+        right_info = param(self, "right_info_topic", "/stereo/right/camera_info")
+        if not period > 0 or self.queue_depth < 1 or self.max_pending_pairs < 1 or pose_buffer < 2:
+            raise ValueError(f"node {self.get_name()}: publish_period_s must be > 0, queue_depth "
+                             ">= 1, max_pending_pairs >= 1, pose_buffer_size >= 2")
+        ext = [float(v) for v in ext]
+        if len(ext) != 12:
+            raise ValueError(f"node {self.get_name()}: camera_extrinsic needs 12 numbers "
+                             f"(R row-major, T), got {len(ext)}")
+        self._extrinsic: Optional[tuple[np.ndarray, np.ndarray]] = None
+        if any(ext):
+            self._extrinsic = (np.array(ext[:9]).reshape(3, 3), np.array(ext[9:]))
+        self._infos: dict[str, CameraInfo] = {}
+        self._tf: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self.rig: Optional[StereoRig] = None
+        if self.calibration_dir:
+            self.rig = StereoRig.from_param_dir(self.calibration_dir)
+
+        self.lock = threading.Lock()
+        self._cond = threading.Condition(self.lock)
+        self.texmap = TextureMap.from_config(self.cfg)
+        self._texturer: Optional[StereoTexturer] = None
+        self._map_info: Optional[MapMetaData] = None
+        self._images: dict[str, dict[int, Image]] = {"left": {}, "right": {}}
+        self._awaiting: deque[_Pair] = deque()
+        self._ready: deque[_Pair] = deque()
+        self._pose_t: deque[int] = deque(maxlen=pose_buffer)
+        self._pose_v: deque[tuple[float, float, float]] = deque(maxlen=pose_buffer)
+        self._want_render = False
+        self._stop = False
+        self._busy = False
+        self.frames_received = 0
+        self.frames_processed = 0
+        self.frames_skipped = 0
+        self.frames_dropped = 0
+        self.ms_total = 0.0
+        self.last_stamp_ns = 0
+        self.last_error = ""
+        self._replay_done = False
+        self._final_sent = False
+        self._last_activity = time.monotonic()
+        self._last_input = time.monotonic()
+        self._dirty = True
+
+        self.pub_texture = self.create_publisher(Image, TEXTURE, qos.latched())
+        self.pub_meta = self.create_publisher(MapMetaData, TEXTURE_METADATA, qos.latched())
+        self.pub_status = self.create_publisher(String, TEXTURE_STATUS, qos.latched())
+        announce_when_matched(self, [(self.pub_texture, param(self, "expected_observers", 0))])
+        img_qos = qos.pipeline(max(4 * self.max_pending_pairs, 20))
+        self.create_subscription(Image, left_topic, lambda m: self._on_image("left", m), img_qos)
+        self.create_subscription(Image, right_topic, lambda m: self._on_image("right", m), img_qos)
+        self.create_subscription(CameraInfo, left_info, lambda m: self._on_info("left", m),
+                                 qos.pipeline(10))
+        self.create_subscription(CameraInfo, right_info, lambda m: self._on_info("right", m),
+                                 qos.pipeline(10))
+        self.create_subscription(TFMessage, topics.TF_STATIC, self._on_tf_static, qos.latched(10))
+        self.create_subscription(PoseStamped, topics.POSE, self._on_pose, qos.pipeline())
+        if param(self, "use_map_metadata", True):  # same geometry, without the cells
+            self.create_subscription(MapMetaData, topics.MAP_METADATA, self._on_map_info,
+                                     qos.latched())
+        else:
+            self.create_subscription(OccupancyGrid, topics.MAP,
+                                     lambda m: self._on_map_info(m.info), qos.latched())
+        self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status,
+                                 qos.latched())
+        self.create_timer(period, self._on_timer)
+        self._worker = threading.Thread(target=self._work, name="texture_worker", daemon=True)
+        self._worker.start()
+
+    # ------------------------------------------------------------------ inputs
+    def _on_info(self, side: str, msg: CameraInfo) -> None:
+        if side not in self._infos:
+            self._infos[side] = msg
+            self._ensure_rig()
+            self._release()
+
+    def _on_tf_static(self, msg: TFMessage) -> None:
+        for tr in msg.transforms:
+            if tr.header.frame_id == self.base_frame:
+                t = tr.transform.translation
+                self._tf[tr.child_frame_id] = (_quat_matrix(tr.transform.rotation),
+                                               np.array([t.x, t.y, t.z]))
+        self._ensure_rig()
+        self._release()
+
+    def _on_map_info(self, info: MapMetaData) -> None:
+        with self.lock:
+            first = self._map_info is None
+            self._map_info = info
+            self._dirty = True
+            if first and not self.texmap.tiles:  # align the texture cells with the map's
+                self.texmap.anchor = np.array([info.origin.position.x, info.origin.position.y])
+
+    def _on_image(self, side: str, msg: Image) -> None:
+        self._last_input = time.monotonic()
+        stamp = convert.stamp_to_ns(msg.header.stamp)
+        other = "right" if side == "left" else "left"
+        mate = self._images[other].pop(stamp, None)
+        if mate is None:
+            store = self._images[side]
+            store[stamp] = msg
+            while len(store) > 2 * self.max_pending_pairs:  # its mate never came
+                store.pop(min(store))
+            return
+        left, right = (msg, mate) if side == "left" else (mate, msg)
+        with self.lock:
+            self.frames_received += 1
+            self._awaiting.append(_Pair(stamp, left, right))
+            while len(self._awaiting) > self.max_pending_pairs:
+                self._awaiting.popleft()
+                self.frames_skipped += 1
+        self._release()
+
+    def _on_pose(self, msg: PoseStamped) -> None:
+        self._last_input = time.monotonic()
+        o = msg.pose.orientation
+        self._pose_t.append(convert.stamp_to_ns(msg.header.stamp))
+        self._pose_v.append((msg.pose.position.x, msg.pose.position.y,
+                             float(quat_to_yaw(o.x, o.y, o.z, o.w))))
+        if self._awaiting:
+            self._release()
+
+    def _on_replay_status(self, msg: ReplayStatus) -> None:
+        self._replay_done = bool(msg.done)
+
+    # ------------------------------------------------------------------ scheduling
+    def _ensure_rig(self) -> bool:
+        if self.rig is not None:
+            return True
+        if len(self._infos) < 2:
+            return False
+        left, right = self._infos["left"], self._infos["right"]
+        mount = self._extrinsic or self._tf.get(left.header.frame_id or "stereo_left")
+        if mount is None:
+            return False
+
+        def info(m: CameraInfo) -> dict:
+            return {"width": m.width, "height": m.height, "k": np.asarray(m.k),
+                    "d": np.asarray(m.d), "r": np.asarray(m.r), "p": np.asarray(m.p)}
+        try:
+            self.rig = StereoRig.from_camera_infos(info(left), info(right), *mount)
+        except ValueError as e:
+            self.last_error = str(e)
+            self.get_logger().error(f"bad stereo calibration: {e}")
+            return False
+        return True
+
+    def _release(self) -> None:
+        """Move the pairs whose pose is known (interpolated) to the worker's queue."""
+        if not self._awaiting or not self._pose_t or not self._ensure_rig():
+            return
+        t = np.fromiter(self._pose_t, dtype=np.int64, count=len(self._pose_t))
+        with self.lock:
+            while self._awaiting:
+                pair = self._awaiting[0]
+                if pair.stamp_ns < t[0]:
+                    self._awaiting.popleft()
+                    self.frames_dropped += 1
+                    continue
+                if pair.stamp_ns > t[-1]:
+                    break
+                j = int(np.searchsorted(t, pair.stamp_ns))
+                i = max(j - 1, 0)
+                j = min(j, len(t) - 1)
+                pair.pose = interpolate_poses(t[[i, j]], np.array([self._pose_v[i], self._pose_v[j]]),
+                                              np.array([pair.stamp_ns]))[0]
+                self._awaiting.popleft()
+                self._ready.append(pair)
+                while len(self._ready) > self.queue_depth:
+                    self._ready.popleft()
+                    self.frames_skipped += 1
+                self._cond.notify()
+
+    # ------------------------------------------------------------------ worker
+    def _work(self) -> None:
+        if self.worker_nice > 0:  # Linux: per-thread niceness; the SLAM threads come first
+            try:
+                os.setpriority(os.PRIO_PROCESS, threading.get_native_id(),
+                               min(os.getpriority(os.PRIO_PROCESS, 0) + self.worker_nice, 19))
+            except (AttributeError, OSError):
+                pass
+        while True:
+            with self._cond:
+                while not self._stop and not self._ready and not self._want_render:
+                    self._cond.wait(0.5)
+                if self._stop:
+                    return
+                pair = self._ready.popleft() if self._ready else None
+                render = self._want_render and pair is None
+                if render:
+                    self._want_render = False
+                self._busy = True
+            try:
+                if pair is not None:
+                    self._process(pair)
+                elif render:
+                    self.publish_texture()
+            except Exception as e:  # noqa: BLE001  (a bad frame must not kill the worker)
+                self.last_error = f"{type(e).__name__}: {e}"
+                self.get_logger().error(f"texture worker: {self.last_error}")
+                if pair is not None:
+                    with self.lock:
+                        self.frames_dropped += 1
+            finally:
+                with self.lock:
+                    self._busy = False
+                    self._last_activity = time.monotonic()
+
+    def _process(self, pair: _Pair) -> None:
+        t0 = time.perf_counter()
+        if self._texturer is None:
+            assert self.rig is not None
+            self._texturer = StereoTexturer(self.rig, self.cfg)
+        left, right = image_array(pair.left), image_array(pair.right)
+        enc = pair.left.encoding
+        with self.lock:
+            cells = (self.texmap.anchor.copy(), self.texmap.cell_m)
+        res = self._texturer.process(left, right, pair.pose, enc, cells=cells)
+        with self.lock:
+            self.texmap.add(res.xy_world, res.rgb)
+            self._dirty = True
+            self.frames_processed += 1
+            self.ms_total += 1e3 * (time.perf_counter() - t0)
+            self.last_stamp_ns = max(self.last_stamp_ns, pair.stamp_ns)
+
+    # ------------------------------------------------------------------ outputs
+    def counters(self) -> dict:
+        """The pair counters and mean processing time (ms per processed pair)."""
+        with self.lock:
+            return {
+                "frames_received": self.frames_received,
+                "frames_processed": self.frames_processed,
+                "frames_skipped": self.frames_skipped,
+                "frames_dropped": self.frames_dropped,
+                "frames_pending": len(self._awaiting) + len(self._ready) + int(self._busy),
+                "ms_per_frame": round(self.ms_total / self.frames_processed, 1)
+                if self.frames_processed else None,
+                "texture_cells": self.texmap.cell_count(),
+                "texture_memory_mb": round(self.texmap.memory_bytes / 2 ** 20, 1),
+                "final": self._final_sent,
+            }
+
+    def render(self) -> Optional[tuple[np.ndarray, np.ndarray, MapMetaData]]:
+        """``(rgb, covered, geometry)`` of the texture in the current /map geometry (or its own
+        extent before a map arrived); None while nothing is coloured and no map is known."""
+        with self.lock:
+            self._dirty = False
+            info = self._map_info
+            if info is not None:
+                rgb, cov = self.texmap.render((info.origin.position.x, info.origin.position.y),
+                                              info.resolution, info.width, info.height)
+                meta = info
+            else:
+                nat = self.texmap.render_native()
+                if nat is None:
+                    return None
+                rgb, cov, origin = nat
+                meta = MapMetaData()
+                meta.resolution = float(self.texmap.cell_m)
+                meta.height, meta.width = int(rgb.shape[0]), int(rgb.shape[1])
+                meta.origin.position.x, meta.origin.position.y = float(origin[0]), float(origin[1])
+                meta.origin.orientation.w = 1.0
+            stamp = self.last_stamp_ns
+        meta.map_load_time = convert.ns_to_stamp(stamp)
+        return rgb, cov, meta
+
+    def publish_texture(self) -> Optional[Image]:
+        """Render and publish ``texture`` + ``texture_metadata`` + the status now (any thread).
+        Returns the published image, or None when there is nothing to publish."""
+        out = self.render()
+        if out is not None:
+            rgb, _, meta = out
+            msg = Image()
+            msg.header.stamp = meta.map_load_time
+            msg.header.frame_id = self.map_frame
+            msg.height, msg.width = int(rgb.shape[0]), int(rgb.shape[1])
+            msg.encoding = "rgb8"
+            msg.is_bigendian = 0
+            msg.step = 3 * msg.width
+            msg.data = array.array("B", np.ascontiguousarray(rgb).tobytes())
+            self.pub_texture.publish(msg)
+            self.pub_meta.publish(meta)
+        self.pub_status.publish(String(data=json.dumps(self.counters())))
+        return None if out is None else msg
+
+    def _on_timer(self) -> None:
+        now = time.monotonic()
+        with self.lock:
+            quiet = now - max(self._last_activity, self._last_input) > self.final_idle_s
+            finish = (self._replay_done and not self._final_sent and not self._ready
+                      and not self._busy and (not self._awaiting or quiet))
+            if finish:  # end of the bag: pairs still without a pose never get one
+                self.frames_dropped += len(self._awaiting)
+                self._awaiting.clear()
+                self._final_sent = True
+            if self._dirty or finish:
+                self._want_render = True
+                self._cond.notify()
+        if finish:
+            self.get_logger().info(f"final texture: {json.dumps(self.counters())}")
+
+    def wait_idle(self, timeout_s: float = 10.0) -> bool:
+        """Block until the worker has processed every ready pair (True) or ``timeout_s``."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            with self.lock:
+                if not self._ready and not self._busy:
+                    return True
+            time.sleep(0.01)
+        return False
+
+    def destroy_node(self) -> None:
+        with self._cond:
+            self._stop = True
+            self._cond.notify_all()
+        if self._worker.is_alive():
+            self._worker.join(timeout=10.0)
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(TextureNode, args)
+
+
+if __name__ == "__main__":
+    import sys
+    sys.exit(main())
