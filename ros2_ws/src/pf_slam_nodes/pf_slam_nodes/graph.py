@@ -455,7 +455,8 @@ def _write_texture(out: Path, rec: _Recorder, rendered, occ: np.ndarray, res: fl
         rgb = np.array(image_array(rec.texture_msg))
         covered = rgb.any(axis=2)
         m = rec.texture_meta
-        same_geometry = (m is not None and (int(m.height), int(m.width)) == occ.shape
+        same_geometry = (m is not None and rgb.shape[:2] == occ.shape
+                         and (int(m.height), int(m.width)) == occ.shape
                          and abs(m.resolution - res) < 1e-9
                          and abs(m.origin.position.x - origin[0]) < 1e-6
                          and abs(m.origin.position.y - origin[1]) < 1e-6)
