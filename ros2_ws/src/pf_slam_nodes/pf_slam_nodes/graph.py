@@ -186,7 +186,6 @@ class _Recorder:
         self.poses: list[np.ndarray] = []
         self.updates = 0
         self.map_msg = None
-        self.map_meta = None
         self.replay_counts: dict[str, int] | None = None
         self.texture_msg = None
         self.texture_meta = None
@@ -342,6 +341,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         else:
             children = _spawn(per_node, domain_id, out)
         state = {"last_progress": time.monotonic(), "last_count": -1}
+        slam_done: dict[str, float] = {}  # "t": when the SLAM finished (before the texture's tail)
 
         def finished() -> bool:
             m = rec.map_msg
@@ -374,8 +374,6 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
                 if (not texture or (rec.texture_status or {}).get("final")
                         or time.monotonic() - slam_done["t"] > texture_timeout_s):
                     outcome.set_result(None)
-
-        slam_done: dict[str, float] = {}
 
         from rclpy.task import Future
         outcome = Future()
@@ -449,7 +447,7 @@ def _write_texture(out: Path, rec: _Recorder, rendered, occ: np.ndarray, res: fl
     rgb = covered = None
     same_geometry = False
     if rendered is not None:  # one process: rendered here in the final /map geometry
-        rgb, covered, meta = rendered
+        rgb, covered, _ = rendered
         same_geometry = True
     elif rec.texture_msg is not None:  # one process per node: the node's last texture
         rgb = np.array(image_array(rec.texture_msg))

@@ -178,6 +178,11 @@ def integrate_diff_drive(poses: np.ndarray, distance_m: np.ndarray, dyaw_rad: np
     poses = np.asarray(poses, dtype=np.float64)
     d = np.asarray(distance_m, dtype=np.float64)
     w = np.asarray(dyaw_rad, dtype=np.float64)
+    if poses.shape == (3,) and d.ndim == w.ndim == 0:  # one step: scalar math (per encoder message)
+        x, y, th = poses.tolist()
+        d, w = float(d), float(w)
+        heading = th + 0.5 * w
+        return np.array([x + d * math.cos(heading), y + d * math.sin(heading), _wrap(th + w)])
     heading = poses[..., 2] + 0.5 * w
     x = poses[..., 0] + d * np.cos(heading)
     y = poses[..., 1] + d * np.sin(heading)

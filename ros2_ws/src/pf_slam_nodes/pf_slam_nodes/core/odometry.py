@@ -10,7 +10,7 @@ from typing import Optional
 
 import numpy as np
 
-from .motion import wrap_angle
+from .motion import integrate_diff_drive, wheel_odometry, wrap_angle
 
 
 class OdometryBuffer:
@@ -154,17 +154,12 @@ class WheelOdometryIntegrator:
         if self._last is None:
             self._last = (left_rad, right_rad)
             return self.pose.copy()
-        # scalar form of wheel_odometry + integrate_diff_drive (one step per encoder message)
-        dl = (left_rad - self._last[0]) * (0.5 * self.left_diameter_m)
-        dr = (right_rad - self._last[1]) * (0.5 * self.right_diameter_m)
-        d, w = 0.5 * (dl + dr), (dr - dl) / self.wheel_base_m
+        d, w = wheel_odometry(left_rad - self._last[0], right_rad - self._last[1],
+                              self.left_diameter_m, self.right_diameter_m, self.wheel_base_m)
         if self.use_gyro:
             w = self._pending_gyro_yaw
             self._pending_gyro_yaw = 0.0
-        x, y, th = self.pose.tolist()
-        heading = th + 0.5 * w
-        self.pose = np.array([x + d * math.cos(heading), y + d * math.sin(heading),
-                              (th + w + math.pi) % (2.0 * math.pi) - math.pi])
+        self.pose = integrate_diff_drive(self.pose, float(d), float(w))
         self._last = (left_rad, right_rad)
         return self.pose.copy()
 

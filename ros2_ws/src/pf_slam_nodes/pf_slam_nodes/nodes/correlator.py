@@ -4,7 +4,7 @@ Subscribes: scan (LaserScan, kept serialized; only the scans that are corrected 
 deserialized), particles/predicted (ParticleArray: one per correction, plus the pass-through
 end-of-run set), pf_slam/grid (after each integration, the mapper's patch: occupancy of the
 cells that scan touched). Publishes: particles/updated (one per predicted set, carrying the
-pose estimate: the best particle).
+pose estimate: the best particle or the weighted mean, filter.pose_estimate).
 
 A corrected set (update=true) is scored against the map that holds every scan corrected before
 it: the node waits for the grid of the previous correction, so the result does not depend on

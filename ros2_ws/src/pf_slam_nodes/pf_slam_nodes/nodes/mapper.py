@@ -38,7 +38,6 @@ class Mapper(Node):
         self.scan_topic = self.resolve_topic_name(topics.SCAN)
         self.scans = ScanQueue()
         self.updates: deque[ParticleArray] = deque()
-        self.processed = 0
         self.last_index = -1
         self.total: int | None = None
         self.last_stamp = 0
@@ -82,7 +81,6 @@ class Mapper(Node):
             self.pub_tf.publish(TFMessage(transforms=[
                 convert.transform(self.map_frame, self.odom_frame, map_to_odom, stamp)]))
             self.path.append(convert.pose_stamped(pose, stamp, self.map_frame))
-            self.processed += 1
             self.last_index = pa.scan_index
             self.last_stamp = stamp
         self._maybe_finish()

@@ -174,8 +174,15 @@ class Predictor(Node):
             if self.waiting_for is not None:
                 # a correction is in flight: queue pass-throughs, stop at the next update
                 odom = self.odom.peek(stamp, final=final)
-                if odom is None or self.stage.gate(odom)[0]:
+                if odom is None:
                     break
+                update, delta = self.stage.gate(odom)
+                if update:
+                    break
+                self.odom.lookup(stamp, final=final)  # consume what peek saw
+                self.scans.popleft()
+                self.deferred.append((index, stamp, odom, delta))
+                continue
             odom = self.odom.lookup(stamp, final=final)
             if odom is None:
                 break
@@ -185,9 +192,6 @@ class Predictor(Node):
         self._maybe_send_end()
 
     def _predict(self, index: int, stamp: int, odom: np.ndarray) -> None:
-        if self.waiting_for is not None:
-            self.deferred.append((index, stamp, odom, self.stage.gate(odom)[1]))
-            return
         update, delta = self.stage.predict(odom)
         if update:
             self.pub.publish(convert.particles_to_msg(
