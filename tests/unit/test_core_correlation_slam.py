@@ -160,7 +160,7 @@ def test_refine_converges_and_never_increases_cost(residual):
     best, cost = refine(starts, pts, field, 30, residual)
     assert np.all(cost <= (d0 * d0).sum(axis=1) + 1e-12)
     d1 = _cost(best, pts, field, residual)[0]
-    np.testing.assert_allclose(cost, (d1 * d1).sum(axis=1), rtol=1e-9)
+    np.testing.assert_allclose(cost, (d1.astype(np.float64) ** 2).sum(axis=1), rtol=1e-6)  # float32 residuals
     # the starts converge to the optimum reached from the true pose (the raycast world's own bias)
     opt, _ = refine(true_pose[None], pts, field, 30, residual)
     e1 = np.hypot(*relative_pose(opt[0], best)[:, :2].T)
@@ -168,3 +168,50 @@ def test_refine_converges_and_never_increases_cost(residual):
     # zero iterations: poses unchanged (angle-wrapped)
     same, _ = refine(starts, pts, field, 0, residual)
     np.testing.assert_allclose(same, starts, atol=1e-12)
+
+
+def test_remap_and_numpy_paths_agree(monkeypatch):
+    """OpenCV remap (fields < 32000 cells a side) and the numpy fallback find the same poses."""
+    import pf_slam_nodes.core.correlation as corr
+    occ = world()
+    true_pose = np.array([6.1, 5.2, 0.4])
+    ang = beam_angles(-math.pi / 2, math.pi / 180, 181)
+    pts = scan_to_points(raycast(occ, true_pose, ang), ang, 0.1, 19.0)
+    cfg = CorrelationConfig(search_x_m=0.2, search_y_m=0.2, search_yaw_rad=0.1)
+    field = build_likelihood_field(occ, RES, cfg.sigma_m, cfg.occupied_threshold, (0.0, 0.0), cfg.max_distance_m)
+    rng = np.random.default_rng(3)
+    starts = compose(true_pose, np.array([0.07, -0.05, 0.04])) + rng.normal(0, [0.03, 0.03, 0.02], (20, 3))
+    assert corr._use_remap(field)
+    w_remap, s_remap = corr.window_search(starts, pts[::2], field, cfg)
+    best_remap, score_remap = correlate(starts, pts, field, cfg)
+    monkeypatch.setattr(corr, "_REMAP_MAX_CELLS", 0)
+    assert not corr._use_remap(field)
+    w_np, s_np = corr.window_search(starts, pts[::2], field, cfg)
+    best_np, score_np = correlate(starts, pts, field, cfg)
+    # window search: the same cells up to float32 rounding at cell edges
+    assert np.mean(np.all(np.abs(w_remap - w_np) < 1e-9, axis=1)) >= 0.9
+    np.testing.assert_allclose(s_remap, s_np, atol=0.05 * np.abs(s_np).max())
+    # refinement: remap's bilinear weights are quantised to 1/32 cell (1.6 mm here)
+    e = np.hypot(*(best_remap[:, :2] - best_np[:, :2]).T)
+    assert np.median(e) < 0.005 and e.max() < 0.03
+    np.testing.assert_allclose(score_remap, score_np, rtol=0.05, atol=1.0)
+
+
+def test_field_block_update_is_exact_across_tiles():
+    """Changes scattered over many tiles (as a long-range scan makes them) update the field
+    exactly like a rebuild; cells far from every change are not touched."""
+    occ = world()
+    cfg = CorrelationConfig()
+    f = GridLikelihoodField(occ.shape[0], occ.shape[1], RES, (0.0, 0.0), cfg)
+    assert f.set_obstacle_block(0, 0, occ >= cfg.occupied_threshold) > 0
+    occ2 = occ.copy()
+    occ2[5, 5] = occ2[190, 230] = occ2[100, 3] = 100  # far apart: separate tiles
+    occ2[40:60, 50:90] = 0
+    block = (occ2 >= cfg.occupied_threshold)[3:195, 2:235]
+    before = f.distance_m.copy()
+    assert f.set_obstacle_block(3, 2, block) == int(np.count_nonzero(block != (occ >= 65)[3:195, 2:235]))
+    full = build_likelihood_field(occ2, RES, cfg.sigma_m, cfg.occupied_threshold, (0.0, 0.0), cfg.max_distance_m)
+    np.testing.assert_allclose(f.distance_m, full.distance_m, atol=1e-6)
+    np.testing.assert_allclose(f.log_likelihood, full.log_likelihood, atol=1e-5)
+    assert f.set_obstacle_block(3, 2, block) == 0  # nothing changed: nothing to do
+    np.testing.assert_array_equal(f.distance_m[150:160, 120:130], before[150:160, 120:130])

@@ -13,6 +13,7 @@ import resource
 import signal
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +25,7 @@ import yaml
 from .io.bag import bag_info, deserialize, read_bag, stamp_ns_of
 from .io.mapfile import render_snapshot, write_map
 from .io.trajectory import write_tum
+from .ros import cdr
 
 NODE_NAMES = ("bag_replay", "predictor", "correlator", "mapper")
 TEXTURE_INPUT = "/stereo/left/image_raw"  # a bag with it gets the texture node
@@ -192,7 +194,11 @@ class _Recorder:
         self.texture_status: dict | None = None
         self.t0 = time.monotonic()
         self._last_print = 0.0
-        node.create_subscription(PoseStamped, topics.POSE, self._on_pose, qos.pipeline())
+        self._writer: threading.Thread | None = None  # the snapshot being written, if any
+        self._writer_error: Exception | None = None
+        self.snapshots_written = 0
+        self.snapshots_skipped = 0
+        node.create_subscription(PoseStamped, topics.POSE, self._on_pose, qos.pipeline(), raw=True)
         node.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         node.create_subscription(OccupancyGrid, topics.MAP, self._on_map, qos.latched())
         node.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
@@ -221,10 +227,10 @@ class _Recorder:
     def _on_updated(self, msg) -> None:
         self.updates += int(msg.update)
 
-    def _on_pose(self, msg) -> None:
-        from .ros import convert
-        self.stamps.append(convert.stamp_to_ns(msg.header.stamp))
-        self.poses.append(convert.pose_from_msg(msg))
+    def _on_pose(self, raw: bytes) -> None:
+        stamp, pose = cdr.pose_stamped_xy_yaw(raw)
+        self.stamps.append(stamp)
+        self.poses.append(pose)
         k = len(self.poses)
         if self.snapshot_every and k % self.snapshot_every == 0 and self.map_msg is not None:
             self.snapshot(f"scan_{k:06d}.png")
@@ -233,13 +239,35 @@ class _Recorder:
     def _on_map(self, msg) -> None:
         self.map_msg = msg
 
-    def snapshot(self, name: str) -> None:
+    def snapshot(self, name: str, wait: bool = False) -> None:
+        """Render the latest map and path to ``snapshots/<name>`` on the writer thread.
+
+        The executor thread only hands over references; a snapshot due while the previous one
+        is still being written is skipped and counted (``snapshots_skipped`` in summary.json).
+        ``wait``: write this one even if the writer is busy, and wait for it.
+        """
+        if self._writer is not None and self._writer.is_alive():
+            if not wait:
+                self.snapshots_skipped += 1
+                return
+            self._writer.join()
+        job = (self.map_msg, list(self.poses), self.out_dir / "snapshots" / name, f"scan {len(self.poses)}")
+        self._writer = threading.Thread(target=self._write_snapshot, args=job, daemon=True)
+        self._writer.start()
+        if wait:
+            self._writer.join()
+        if self._writer_error is not None:
+            raise self._writer_error
+
+    def _write_snapshot(self, map_msg, poses: list, path: Path, title: str) -> None:
         from .ros import convert
-        occ, res, origin = convert.msg_to_grid(self.map_msg)
-        traj = np.array(self.poses)[:, :2] if self.poses else np.zeros((0, 2))
-        render_snapshot(occ, res, origin, traj, self.out_dir / "snapshots" / name,
-                        pose=self.poses[-1] if self.poses else None,
-                        title=f"scan {len(self.poses)}")
+        try:
+            occ, res, origin = convert.msg_to_grid(map_msg)
+            traj = np.array(poses)[:, :2] if poses else np.zeros((0, 2))
+            render_snapshot(occ, res, origin, traj, path, pose=poses[-1] if poses else None, title=title)
+            self.snapshots_written += 1
+        except Exception as exc:  # surfaced by the next snapshot() on the executor thread
+            self._writer_error = exc
 
     def print_progress(self, final: bool = False) -> None:
         now = time.monotonic()
@@ -297,7 +325,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     if processes not in ("single", "multi"):
         raise RunError(f"--processes must be 'single' or 'multi', got {processes!r}")
     info = bag_info(bag)
-    texture = texture and TEXTURE_INPUT in info["topics"]
+    texture = texture and info["topics"].get(TEXTURE_INPUT, (None, 0))[1] > 0  # images, not just the topic
     node_names = NODE_NAMES + (("texture",) if texture else ())
     layers = [detect_inputs(bag, info)]
     if params_file:
@@ -411,7 +439,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     stamps = np.array(rec.stamps, dtype=np.int64)
     poses = np.array(rec.poses)
     write_tum(out / "trajectory.tum", stamps / 1e9, poses)
-    rec.snapshot("final.png")
+    rec.snapshot("final.png", wait=True)
     texture_summary = _write_texture(out, rec, texture_out, occ, res, origin) if texture else None
     peak = max(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
                resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss) / 1024.0
@@ -430,6 +458,8 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         "rate": rate,
         "executor": executor if processes == "single" else "single (per process)",
         "peak_rss_mb": round(peak, 1),
+        "snapshots_written": rec.snapshots_written,
+        "snapshots_skipped": rec.snapshots_skipped,
         "complete": True,
     }
     if texture_summary is not None:

@@ -20,6 +20,9 @@ from .scan import transform_points_batch
 #: Border (cells) of clamp value around the stored field; bounds the window search shift.
 DEFAULT_PAD_CELLS = 32
 
+# tile size (cells) of the likelihood field's local updates
+_TILE = 32
+
 # keep the (N, J, S, M) index tensor of the window search below this many elements per chunk
 _CHUNK_ELEMENTS = 2_000_000
 
@@ -219,9 +222,23 @@ class GridLikelihoodField(LikelihoodField):
         ci = idx[changed]
         flat[ci] = val[changed]
         rows = ci // self.width
-        cols = ci - rows * self.width
-        self._recompute(int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1)
+        self._recompute_cells(rows, ci - rows * self.width)
         return int(ci.size)
+
+    def set_obstacle_block(self, row0: int, col0: int, is_obstacle: np.ndarray) -> int:
+        """Set the obstacle state of the rectangle of cells starting at ``(row0, col0)``
+        (``is_obstacle``: ``(h, w)`` bool, inside the grid) and update the field around the
+        changes; like :meth:`set_obstacles` without flat index arrays. Returns the cells changed."""
+        block = np.asarray(is_obstacle, dtype=bool)
+        h, w = block.shape
+        view = self.obstacles[row0:row0 + h, col0:col0 + w]
+        changed = view != block
+        if not changed.any():
+            return 0
+        view[...] = block
+        rows, cols = np.nonzero(changed)
+        self._recompute_cells(rows + row0, cols + col0)
+        return int(rows.size)
 
     def update_from_occupancy(self, occupancy_int8: np.ndarray) -> int:
         """Bring the field up to date with a full int8 map of the same size (diff, then local update).
@@ -240,7 +257,25 @@ class GridLikelihoodField(LikelihoodField):
             return 0
         return self.set_obstacles(ci, mask.reshape(-1)[ci])
 
+    def _recompute_cells(self, rows: np.ndarray, cols: np.ndarray) -> None:
+        """Update the field around changed cells, tile by tile.
+
+        A scan's changes lie along its far endpoints, so their bounding box is mostly untouched
+        map; the distance transform (linear in area) runs instead on each horizontal run of
+        ``_TILE``-cell tiles that hold a change (exact: see :meth:`_recompute`).
+        """
+        t = _TILE
+        ntc = (self.width + t - 1) // t
+        key = np.unique((rows // t) * ntc + cols // t)
+        tr, tc = key // ntc, key % ntc
+        brk = np.flatnonzero((np.diff(tr) != 0) | (np.diff(tc) != 1)) + 1
+        for a, b in zip(np.r_[0, brk], np.r_[brk, key.size]):
+            r0, c0 = int(tr[a]) * t, int(tc[a]) * t
+            self._recompute(r0, min(r0 + t, self.height), c0, min((int(tc[b - 1]) + 1) * t, self.width))
+
     def _recompute(self, r0: int, r1: int, c0: int, c1: int) -> None:
+        """Recompute the field for cells within ``R`` of the rectangle (exact: the distance
+        transform runs on the rectangle grown by ``2R``, and distances are clamped at ``R``)."""
         r = self._r
         h, w = self.height, self.width
         # output region: cells within r of the change; source region: within 2r
@@ -337,13 +372,55 @@ def _offsets(half: float, step: float) -> np.ndarray:
     return np.arange(-k, k + 1, dtype=np.float64) * step
 
 
+# cv2.remap turns float maps into 16-bit fixed-point cell coordinates: tables up to this size only
+_REMAP_MAX_CELLS = 32000
+
+
+def _use_remap(field: LikelihoodField) -> bool:
+    """Whether OpenCV's remap can do the window search's nearest-cell lookups (both padded
+    sides < 32000 cells): many points in one C call instead of numpy index arithmetic."""
+    return max(field._dist.shape) < _REMAP_MAX_CELLS
+
+
+def _table_coords(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField):
+    """float32 remap coordinates ``u, v`` ``(N, M)`` of the points at every pose: cell-centre
+    based (cell ``k`` spans ``[k - 0.5, k + 0.5)``), so remap's rounding picks the containing cell."""
+    c = np.cos(poses[:, 2:3])
+    s = np.sin(poses[:, 2:3])
+    px, py = pts[:, 0], pts[:, 1]
+    inv = 1.0 / field.resolution
+    off = field.pad - 0.5
+    u = ((c * px - s * py) * inv + ((poses[:, 0:1] - field.origin[0]) * inv + off)).astype(np.float32)
+    v = ((s * px + c * py) * inv + ((poses[:, 1:2] - field.origin[1]) * inv + off)).astype(np.float32)
+    return u, v
+
+
+def _window_scores_remap(cand: np.ndarray, pts: np.ndarray, field: LikelihoodField, sx: np.ndarray,
+                         sy: np.ndarray) -> np.ndarray:
+    """``(K, S)`` summed nearest-cell log-likelihood of every candidate pose ``(K, 3)`` at every
+    whole-cell shift (dy-major (dy, dx) order), one remap per shift."""
+    u, v = _table_coords(cand, pts, field)
+    out = np.empty((cand.shape[0], sx.size * sy.size))
+    table, clamp = field._loglik, float(field.min_log_likelihood)
+    k = 0
+    for dy in sy:
+        vv = v + np.float32(dy)
+        for dx in sx:
+            vals = cv2.remap(table, u + np.float32(dx), vv, cv2.INTER_NEAREST,
+                             borderMode=cv2.BORDER_CONSTANT, borderValue=clamp)
+            out[:, k] = vals.sum(axis=1, dtype=np.float64)
+            k += 1
+    return out
+
+
 def window_search(
     poses: np.ndarray, points: np.ndarray, field: LikelihoodField, cfg: CorrelationConfig
 ) -> tuple[np.ndarray, np.ndarray]:
     """Exhaustive (x, y, yaw) window search around every pose with nearest-cell lookups.
 
     Translations are whole-cell shifts (``step_xy_m`` rounded to >= 1 cell), so every rotated
-    point set is looked up once per shift with integer index arithmetic.
+    point set is looked up once per shift: one OpenCV nearest remap per shift, or integer index
+    arithmetic on fields too large for remap (the same cells up to float32 rounding at cell edges).
 
     Parameters
     ----------
@@ -383,18 +460,25 @@ def window_search(
     n_yaw, n_shift, m = yaws.size, offs.size, pts.shape[0]
     best_poses = np.empty_like(poses)
     best_scores = np.empty(n)
-    chunk = max(1, _CHUNK_ELEMENTS // max(1, n_yaw * n_shift * m))
+    remap = _use_remap(field)
+    # the index tensor of the numpy path is (n, J, S, M): bound it by chunks of particles
+    chunk = n if remap else max(1, _CHUNK_ELEMENTS // max(1, n_yaw * n_shift * m))
     table = field._loglik_flat
     for i0 in range(0, n, chunk):  # chunks of particles (not one particle at a time)
         p = poses[i0:i0 + chunk]
-        th = p[:, 2:3] + yaws[None, :]  # (n, J)
-        c = np.cos(th)[..., None]
-        s = np.sin(th)[..., None]
-        wx = p[:, 0, None, None] + c * pts[:, 0] - s * pts[:, 1]  # (n, J, M)
-        wy = p[:, 1, None, None] + s * pts[:, 0] + c * pts[:, 1]
-        cx, cy = field._cells(np.stack([wx, wy], axis=-1), max_shift)
-        base = (cy * field._wp + cx).astype(idx_t)
-        sc_all = table[base[:, :, None, :] + offs[None, None, :, None]].sum(axis=-1, dtype=np.float64)
+        if remap:
+            cand = np.repeat(p, n_yaw, axis=0)
+            cand[:, 2] += np.tile(yaws, p.shape[0])
+            sc_all = _window_scores_remap(cand, pts, field, sx, sy).reshape(p.shape[0], n_yaw, n_shift)
+        else:
+            th = p[:, 2:3] + yaws[None, :]  # (n, J)
+            c = np.cos(th)[..., None]
+            s = np.sin(th)[..., None]
+            wx = p[:, 0, None, None] + c * pts[:, 0] - s * pts[:, 1]  # (n, J, M)
+            wy = p[:, 1, None, None] + s * pts[:, 0] + c * pts[:, 1]
+            cx, cy = field._cells(np.stack([wx, wy], axis=-1), max_shift)
+            base = (cy * field._wp + cx).astype(idx_t)
+            sc_all = table[base[:, :, None, :] + offs[None, None, :, None]].sum(axis=-1, dtype=np.float64)
         if penalty is not None:
             sc_all -= penalty[None]
         flat = sc_all.reshape(p.shape[0], -1)
@@ -439,42 +523,49 @@ def _cost(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField, residual: 
     """Residuals ``(N, M)``, their gradients ``gx, gy`` (1/m) and the rotated points ``rx, ry``.
 
     The bilinear interpolation is inlined (no ``(…, 2)`` stacking) because the refinement calls
-    this with small arrays where the per-call overhead of numpy dominates.
+    this with small arrays where the per-call overhead of numpy dominates. (OpenCV's remap would
+    be faster, but its bilinear weights are quantised to 1/32 cell and a finite-difference
+    gradient of it stops Gauss-Newton centimetres short: measured, not used.)
     """
-    c = np.cos(poses[:, 2:3])
-    s = np.sin(poses[:, 2:3])
-    px, py = pts[:, 0], pts[:, 1]
-    rx = c * px - s * py  # rotated points (N, M)
+    f32 = np.float32
+    c = np.cos(poses[:, 2:3]).astype(f32)
+    s = np.sin(poses[:, 2:3]).astype(f32)
+    px, py = pts[:, 0].astype(f32), pts[:, 1].astype(f32)
+    rx = c * px - s * py  # rotated points (N, M), float32 like the field (robot frame: small)
     ry = s * px + c * py
     res = field.resolution
-    inv = 1.0 / res
+    inv = f32(1.0 / res)
     off = field.pad - 0.5
     hp, wp = field._dist.shape
-    u = (poses[:, 0:1] + rx - field.origin[0]) * inv + off
-    v = (poses[:, 1:2] + ry - field.origin[1]) * inv + off
+    # table coordinates; the large pose part is formed in float64, then rounded once
+    u = rx * inv + ((poses[:, 0:1] - field.origin[0]) / res + off).astype(f32)
+    v = ry * inv + ((poses[:, 1:2] - field.origin[1]) / res + off).astype(f32)
     np.clip(u, 0.0, wp - 1.001, out=u)
     np.clip(v, 0.0, hp - 1.001, out=v)
     u0 = np.floor(u)
     v0 = np.floor(v)
     fu = u - u0
     fv = v - v0
-    i00 = v0.astype(np.intp) * wp + u0.astype(np.intp)
+    idx_t = np.int32 if field._dist_flat.size < 2**31 - wp - 1 else np.intp
+    i00 = v0.astype(idx_t) * idx_t(wp) + u0.astype(idx_t)
     table = field._dist_flat if residual == "distance" else field._prob_flat
     d00 = table[i00]
-    d01 = table[i00 + 1]
+    a0 = table[i00 + 1] - d00
     d10 = table[i00 + wp]
-    d11 = table[i00 + (wp + 1)]
-    a0 = d01 - d00
-    a1 = d11 - d10
+    a1 = table[i00 + (wp + 1)] - d10
     top = d00 + fu * a0
-    bot = d10 + fu * a1
-    e = bot - top
+    e = d10 + fu * a1 - top
     val = top + fv * e
-    gx = ((1.0 - fv) * a0 + fv * a1) * inv
+    gx = (a0 + fv * (a1 - a0)) * inv
     gy = e * inv
     if residual == "distance":
         return val, gx, gy, rx, ry
     return 1.0 - val, -gx, -gy, rx, ry  # r = 1 - M, dr = -dM
+
+
+def _rowdot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``(N,)`` float64 row sums of ``a * b`` for ``(N, M)`` arrays (float32 or float64)."""
+    return np.einsum("nm,nm->n", a, b, dtype=np.float64)
 
 
 def refine(
@@ -508,26 +599,29 @@ def refine(
     x = np.array(poses, dtype=np.float64).reshape(-1, 3)
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     d, gx, gy, rx, ry = _cost(x, pts, field, residual)
-    cost = np.einsum("nm,nm->n", d, d)
+    cost = _rowdot(d, d)
     max_t = 2.0 * field.resolution
     max_r = 0.05
     active = np.arange(x.shape[0])  # poses still moving
-    eye = np.eye(3)[None]
+    diag = np.arange(3)
     for _ in range(iterations):
         if active.size == 0:
             break
-        jac = np.stack([gx, gy, gy * rx - gx * ry], axis=1)  # (n, 3, M)
-        h = np.matmul(jac, jac.transpose(0, 2, 1))
-        b = np.matmul(jac, d[:, :, None])
-        diag = np.diagonal(h, axis1=1, axis2=2)
-        h = h + (1e-3 * diag + 1e-9)[:, :, None] * eye
-        step = -np.linalg.solve(h, b)[..., 0]
+        j3 = gy * rx - gx * ry  # d r / d yaw
+        h = np.empty((active.size, 3, 3))  # J J^T from its six distinct sums
+        h[:, 0, 0], h[:, 1, 1], h[:, 2, 2] = _rowdot(gx, gx), _rowdot(gy, gy), _rowdot(j3, j3)
+        h[:, 0, 1] = h[:, 1, 0] = _rowdot(gx, gy)
+        h[:, 0, 2] = h[:, 2, 0] = _rowdot(gx, j3)
+        h[:, 1, 2] = h[:, 2, 1] = _rowdot(gy, j3)
+        b = np.stack([_rowdot(gx, d), _rowdot(gy, d), _rowdot(j3, d)], axis=1)
+        h[:, diag, diag] = h[:, diag, diag] * (1.0 + 1e-3) + 1e-9  # Levenberg damping
+        step = -np.linalg.solve(h, b[:, :, None])[..., 0]
         t = np.hypot(step[:, 0], step[:, 1])
         step[:, :2] *= np.minimum(1.0, max_t / np.maximum(t, 1e-12))[:, None]
         np.clip(step[:, 2], -max_r, max_r, out=step[:, 2])
         xn = x[active] + step
         dn, gxn, gyn, rxn, ryn = _cost(xn, pts, field, residual)
-        cn = np.einsum("nm,nm->n", dn, dn)
+        cn = _rowdot(dn, dn)
         better = cn < cost[active]
         acc = active[better]
         x[acc] = xn[better]
@@ -540,6 +634,11 @@ def refine(
             d, gx, gy, rx, ry = dn[moving], gxn[moving], gyn[moving], rxn[moving], ryn[moving]
     x[:, 2] = (x[:, 2] + np.pi) % (2 * np.pi) - np.pi
     return x, cost
+
+
+def _distances(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField) -> np.ndarray:
+    """``(N, M)`` bilinear obstacle distance of the points at every pose."""
+    return field.distance_bilinear(transform_points_batch(pts, poses))[0]
 
 
 def correlate(
@@ -578,12 +677,12 @@ def correlate(
     refine_pts = pts[::cfg.refine_beam_stride]
     best, _ = window_search(poses, search_pts, field, cfg)
     best, _ = refine(best, refine_pts, field, cfg.refine_iterations, cfg.refine_residual)
-    d, _ = field.distance_bilinear(transform_points_batch(refine_pts, best))
-    score = -0.5 * (d * d).sum(axis=1) / (cfg.sigma_m ** 2)
+    d = _distances(best, refine_pts, field)
+    score = -0.5 * _rowdot(d, d) / (cfg.sigma_m ** 2)
     if cfg.prior_sigma_xy_m > 0 or cfg.prior_sigma_yaw_rad > 0:
         score -= _prior_cost(best, poses, cfg)
-        d0, _ = field.distance_bilinear(transform_points_batch(refine_pts, poses))
-        score0 = -0.5 * (d0 * d0).sum(axis=1) / (cfg.sigma_m ** 2)
+        d0 = _distances(poses, refine_pts, field)
+        score0 = -0.5 * _rowdot(d0, d0) / (cfg.sigma_m ** 2)
         stay = score0 >= score
         best[stay] = poses[stay]
         score = np.where(stay, score0, score)

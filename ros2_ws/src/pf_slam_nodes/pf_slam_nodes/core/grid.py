@@ -130,6 +130,7 @@ class LogOddsGrid:
         self._touched: Optional[list[int]] = None  # [rmin, rmax, cmin, cmax) of written cells
         #: flat indices (row * width + col, may repeat) written by the last :meth:`integrate_scan`
         self.last_touched_idx = np.zeros(0, dtype=np.int64)
+        self.last_touched_bounds: Optional[Bounds] = None  # bounds of last_touched_idx
 
     # ------------------------------------------------------------------ geometry
     def world_to_cell(self, xy: np.ndarray) -> np.ndarray:
@@ -263,10 +264,12 @@ class LogOddsGrid:
         flat[hit_idx] = np.minimum(hit_before + np.float32(cfg.log_odds_hit), np.float32(cfg.clip_max))
         allidx = np.concatenate([free_idx, hit_idx])
         self.last_touched_idx = allidx
+        self.last_touched_bounds = None
         if allidx.size:
             rows = allidx // self.width
             cols = allidx - rows * self.width
             b = [int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1]
+            self.last_touched_bounds = tuple(b)
             if self._touched is None:
                 self._touched = b
             else:
@@ -297,6 +300,13 @@ class LogOddsGrid:
         lo = self._crop(bounds)
         p = 100.0 / (1.0 + np.exp(-lo, dtype=np.float32))
         out = np.rint(p).astype(np.int8)
+        out[lo == 0] = -1
+        return out
+
+    def occupancy_at(self, flat_idx: np.ndarray) -> np.ndarray:
+        """:meth:`occupancy` values of the cells at flat indices ``(K,)`` -> ``(K,)`` int8."""
+        lo = self.log_odds.reshape(-1)[flat_idx]
+        out = np.rint(100.0 / (1.0 + np.exp(-lo, dtype=np.float32))).astype(np.int8)
         out[lo == 0] = -1
         return out
 

@@ -132,17 +132,14 @@ class CorrectionStage:
         f = self.field
         occ = np.asarray(patch.occupancy)
         c0, r0 = np.rint((np.asarray(patch.origin, float) - f.origin) / f.resolution).astype(np.int64)
-        rows = r0 + np.arange(occ.shape[0])
-        cols = c0 + np.arange(occ.shape[1])
-        rk, ck = (rows >= 0) & (rows < f.height), (cols >= 0) & (cols < f.width)
-        if not rk.any() or not ck.any():
+        a0, a1 = max(int(r0), 0), min(int(r0) + occ.shape[0], f.height)  # the patch inside the grid
+        b0, b1 = max(int(c0), 0), min(int(c0) + occ.shape[1], f.width)
+        if a0 >= a1 or b0 >= b1:
             return 0
-        flat = (rows[rk][:, None] * f.width + cols[ck][None, :]).reshape(-1)
-        sub = occ[np.ix_(rk, ck)]
+        sub = occ[a0 - r0:a1 - r0, b0 - c0:b1 - c0]
         if self.known is not None:
-            self.known.reshape(-1)[flat] = (sub >= 0).reshape(-1)
-        obstacle = (sub >= self.corr_cfg.occupied_threshold).reshape(-1)
-        return f.set_obstacles(flat, obstacle)
+            self.known[a0:a1, b0:b1] = sub >= 0
+        return f.set_obstacle_block(a0, b0, sub >= self.corr_cfg.occupied_threshold)
 
     def _observed(self, pts: np.ndarray, pose: np.ndarray) -> np.ndarray:
         """``(M,)`` bool: robot-frame points that land on an observed map cell at ``pose``."""
@@ -218,11 +215,9 @@ class MappingStage:
         idx = g.last_touched_idx
         if idx.size == 0:
             return MapPatch(np.zeros((0, 0), np.int8), g.resolution, g.origin.copy())
-        rows, cols = idx // g.width, idx % g.width
-        r0, r1, c0, c1 = bounds = (int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1)
-        occ = g.occupancy(bounds)
-        self._occ[r0:r1, c0:c1] = occ
-        return MapPatch(occ, g.resolution, g.bounds_origin(bounds))
+        self._occ.reshape(-1)[idx] = g.occupancy_at(idx)  # only the touched cells changed
+        r0, r1, c0, c1 = bounds = g.last_touched_bounds
+        return MapPatch(self._occ[r0:r1, c0:c1].copy(), g.resolution, g.bounds_origin(bounds))
 
     def map_occupancy(self) -> tuple[np.ndarray, float, np.ndarray]:
         """int8 occupancy of the explored part of the grid (the whole grid before any scan)."""

@@ -9,6 +9,7 @@ number of messages published per topic goes out on pf_slam/replay_status (latche
 from __future__ import annotations
 
 import importlib
+import struct
 import time
 from typing import Any
 
@@ -22,6 +23,8 @@ from std_msgs.msg import String
 from ..io.bag import bag_info, read_bag
 from ..ros import qos, topics
 from .common import param, run_node
+
+_CLOCK_CDR = struct.Struct("<IiI")  # CDR encapsulation (little endian), sec, nanosec
 
 LATCHED_TOPICS = ("/tf_static",)
 
@@ -69,7 +72,6 @@ class BagReplay(Node):
             profile = qos.latched() if topic in LATCHED_TOPICS else qos.pipeline(10000)
             self.publishers_[topic] = self.create_publisher(message_class(msgtype), topic, profile)
         self.pub_clock = self.create_publisher(Clock, topics.CLOCK, qos.outputs(10))
-        self.clock_msg = Clock()  # re-used: building a message costs more than publishing it
         self.pub_status = self.create_publisher(ReplayStatus, topics.REPLAY_STATUS, qos.latched())
         self.create_subscription(PoseStamped, topics.POSE, self._on_progress, qos.pipeline(), raw=True)
         self.create_subscription(String, topics.READY, self._on_ready, qos.latched(depth=10))
@@ -130,9 +132,8 @@ class BagReplay(Node):
             if topic == self.scan_topic:
                 self.scans_published += 1
             if stamp_ns - self.last_clock_ns >= self.clock_period_ns or topic == self.scan_topic:
-                c = self.clock_msg.clock
-                c.sec, c.nanosec = int(stamp_ns // 1_000_000_000), int(stamp_ns % 1_000_000_000)
-                self.pub_clock.publish(self.clock_msg)
+                # rosgraph_msgs/Clock as CDR bytes: no message object per publish
+                self.pub_clock.publish(_CLOCK_CDR.pack(0x100, stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000))
                 self.last_clock_ns = stamp_ns
             self.pending = None
 

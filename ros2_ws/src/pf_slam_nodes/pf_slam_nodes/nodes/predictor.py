@@ -34,7 +34,7 @@ from ..core.motion import compose
 from ..core.odometry import GyroBuffer, OdometryBuffer, WheelOdometryIntegrator
 from ..core.stages import PredictionStage
 from ..io.trajectory import quat_to_yaw
-from ..ros import convert, qos, topics
+from ..ros import cdr, convert, qos, topics
 from .common import announce_when_matched, declare_config, param, run_node
 
 
@@ -57,12 +57,13 @@ class Predictor(Node):
         self.last_pass_through: tuple | None = None  # (index, stamp, odom, delta)
         self.deferred: deque[tuple] = deque()  # pass-throughs behind the correction in flight
         self.end_sent = False
+        self.blocked = -1  # index of the scan known to need a correction while one is in flight
+        self.encoders_rejected = 0
         self.odom_topic = self.resolve_topic_name(topics.ODOM if source == "odom" else topics.ENCODERS)
         self.scan_topic = self.resolve_topic_name(topics.SCAN)
         self.pub = self.create_publisher(ParticleArray, topics.PARTICLES_PREDICTED, qos.pipeline())
         self.pub_pose = self.create_publisher(PoseStamped, topics.POSE, qos.pipeline())
-        self.pose_msg = PoseStamped()  # re-used: one pose per scan
-        self.pose_msg.header.frame_id = self.map_frame
+        self.pose_cdr = cdr.PoseStampedWriter(self.map_frame)  # one pose per scan: published as bytes
         # the correlator; bag_replay (paces on pose) + observers that must see every pose
         announce_when_matched(self, [(self.pub, 1),
                                      (self.pub_pose, 1 + param(self, "expected_observers", 0))])
@@ -77,7 +78,8 @@ class Predictor(Node):
                                                   param(self, "wheels.base_m", 0.33))
             self.encoders: deque[tuple[int, float, float]] = deque()
             self.last_encoder_ns: int | None = None
-            self.create_subscription(JointState, topics.ENCODERS, self._on_encoders, qos.pipeline(10000))
+            self.create_subscription(JointState, topics.ENCODERS, self._on_encoders, qos.pipeline(10000),
+                                     raw=True)
         # yaw from a gyro (FOG) instead of the wheels: "none" | "batch" (FogBatch) | "vector3"
         fog = param(self, "fog_format", "none")
         if fog not in ("none", "batch", "vector3"):
@@ -89,7 +91,7 @@ class Predictor(Node):
         self.fog_expected: int | None = None
         self.fog_topic = self.resolve_topic_name(topics.FOG)
         if fog == "batch":
-            self.create_subscription(FogBatch, topics.FOG, self._on_fog_batch, qos.pipeline(10000))
+            self.create_subscription(FogBatch, topics.FOG, self._on_fog_batch, qos.pipeline(10000), raw=True)
         elif fog == "vector3":
             self.create_subscription(Vector3Stamped, topics.FOG, self._on_fog_vector, qos.pipeline(100000))
 
@@ -102,20 +104,32 @@ class Predictor(Node):
         self.odom_received += 1
         self._drain()
 
-    def _on_encoders(self, msg: JointState) -> None:
-        if len(msg.position) < 2:
-            self.get_logger().warn("encoders: JointState with fewer than 2 positions ignored",
-                                   throttle_duration_sec=5.0)
+    def _on_encoders(self, raw: bytes) -> None:
+        stamp, position = self._parse(cdr.joint_state_positions, raw, "encoders")
+        if position is None or len(position) < 2:
+            if position is not None:
+                self.get_logger().warn("encoders: JointState with fewer than 2 positions ignored",
+                                       throttle_duration_sec=5.0)
+            self.odom_received += 1  # counted: the end-of-stream count must still match
+            self.encoders_rejected += 1
             return
-        self.encoders.append((convert.stamp_to_ns(msg.header.stamp), float(msg.position[0]),
-                              float(msg.position[1])))
+        self.encoders.append((stamp, float(position[0]), float(position[1])))
         self._drain()
 
-    def _on_fog_batch(self, msg: FogBatch) -> None:
-        self.gyro.add(np.frombuffer(msg.stamps_ns, dtype=np.int64) if len(msg.stamps_ns) else [],
-                      np.frombuffer(msg.delta_yaw, dtype=np.float64) if len(msg.delta_yaw) else [])
-        self.fog_received += 1
+    def _on_fog_batch(self, raw: bytes) -> None:
+        stamps, yaw = self._parse(cdr.fog_batch_yaw, raw, "fog")
+        self.fog_received += 1  # counted even if bad: the end-of-stream count must still match
+        if stamps is not None:
+            self.gyro.add(stamps, yaw)
         self._drain()
+
+    def _parse(self, reader, raw: bytes, topic: str):
+        """Raw message -> the reader's fields, or (None, None) with an error for a bad message."""
+        try:
+            return reader(raw)
+        except ValueError as exc:
+            self.get_logger().error(f"{topic}: message dropped: {exc}", throttle_duration_sec=5.0)
+            return None, None
 
     def _on_fog_vector(self, msg: Vector3Stamped) -> None:
         self.gyro.add([convert.stamp_to_ns(msg.header.stamp)], [msg.vector.z])
@@ -173,11 +187,14 @@ class Predictor(Node):
                 and self.odom.has_exact(self.scans[1][1], ahead=int(self.scans[1][1] == stamp)))
             if self.waiting_for is not None:
                 # a correction is in flight: queue pass-throughs, stop at the next update
+                if index == self.blocked:
+                    break
                 odom = self.odom.peek(stamp, final=final)
                 if odom is None:
                     break
                 update, delta = self.stage.gate(odom)
                 if update:
+                    self.blocked = index  # decided: no need to look again on every message
                     break
                 self.odom.lookup(stamp, final=final)  # consume what peek saw
                 self.scans.popleft()
@@ -206,7 +223,7 @@ class Predictor(Node):
         self.last_pass_through = (index, stamp, odom, delta)
 
     def _publish_pose(self, pose: np.ndarray, stamp: int) -> None:
-        self.pub_pose.publish(convert.fill_pose_stamped(self.pose_msg, pose, stamp))
+        self.pub_pose.publish(self.pose_cdr.pack(pose, stamp))
 
     def _maybe_send_end(self) -> None:
         """Once the last scan of the bag is posed as a pass-through, send it on as the end of

@@ -1,0 +1,129 @@
+"""Direct CDR reading/writing of the high-rate messages (no Python message objects).
+
+rclpy turns every received message into Python objects (a JointState is eight of them) and
+every published one back; at the car's rates (100 Hz encoders, FOG batches and scans, a pose
+per scan) that costs more than the filter. The nodes therefore subscribe to these topics raw
+(``raw=True``) and publish the pose as bytes, through the readers and the writer below.
+
+The format is plain CDR (XCDR1) as rmw_fastrtps / rmw_cyclonedds and rosbags write it: a 4-byte
+encapsulation header (byte 1: 1 = little endian), then the fields in order, each primitive aligned
+to its size counted from the end of that header; a string is a uint32 length (with the NUL) and
+its bytes; a sequence a uint32 count and its elements. Every reader checks what it reads against
+the buffer's length and raises ``ValueError`` naming the message type otherwise, and the unit
+tests compare each against rclpy's own (de)serialization.
+"""
+from __future__ import annotations
+
+import math
+import struct
+
+import numpy as np
+
+_HDR = 4  # encapsulation header; alignment counts from its end
+
+
+class CdrReader:
+    """Sequential reader over one serialized message."""
+
+    def __init__(self, raw: bytes, what: str) -> None:
+        if len(raw) < 12 or raw[0] != 0 or raw[1] not in (0, 1):
+            raise ValueError(f"{what}: not a CDR-serialized message ({len(raw)} bytes)")
+        self.raw = raw
+        self.what = what
+        self.little = raw[1] == 1
+        self.end = "<" if self.little else ">"
+        self.pos = _HDR
+
+    def _align(self, n: int) -> None:
+        self.pos += (-(self.pos - _HDR)) % n
+
+    def _need(self, n: int) -> None:
+        if self.pos + n > len(self.raw):
+            raise ValueError(f"{self.what}: truncated CDR ({len(self.raw)} bytes, field at {self.pos}+{n})")
+
+    def u32(self) -> int:
+        self._align(4)
+        self._need(4)
+        v = struct.unpack_from(self.end + "I", self.raw, self.pos)[0]
+        self.pos += 4
+        return v
+
+    def stamp_ns(self) -> int:
+        self._align(4)
+        self._need(8)
+        sec, nsec = struct.unpack_from(self.end + "iI", self.raw, self.pos)
+        self.pos += 8
+        return sec * 1_000_000_000 + nsec
+
+    def skip_string(self) -> None:
+        n = self.u32()
+        self._need(n)
+        self.pos += n
+
+    def header(self) -> int:
+        """std_msgs/Header -> stamp (ns); the frame_id is skipped."""
+        stamp = self.stamp_ns()
+        self.skip_string()
+        return stamp
+
+    def array(self, dtype: str) -> np.ndarray:
+        """A sequence of a 8-byte primitive (``'f8'`` or ``'i8'``) as a read-only view."""
+        n = self.u32()
+        if n == 0:
+            return np.empty(0, dtype=dtype)
+        self._align(8)
+        self._need(8 * n)
+        out = np.frombuffer(self.raw, dtype=np.dtype(dtype).newbyteorder(self.end), count=n, offset=self.pos)
+        self.pos += 8 * n
+        return out
+
+
+def joint_state_positions(raw: bytes) -> tuple[int, np.ndarray]:
+    """sensor_msgs/JointState bytes -> (header stamp ns, position (K,) float64)."""
+    r = CdrReader(raw, "sensor_msgs/JointState")
+    stamp = r.header()
+    for _ in range(r.u32()):  # name[]
+        r.skip_string()
+    return stamp, r.array("f8")
+
+
+def fog_batch_yaw(raw: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """pf_slam_interfaces/FogBatch bytes -> (stamps_ns (K,) int64, delta_yaw (K,) float64)."""
+    r = CdrReader(raw, "pf_slam_interfaces/FogBatch")
+    r.header()
+    stamps = r.array("i8")
+    r.array("f8")  # delta_roll
+    r.array("f8")  # delta_pitch
+    yaw = r.array("f8")
+    if yaw.size != stamps.size:
+        raise ValueError(f"pf_slam_interfaces/FogBatch: {stamps.size} stamps but {yaw.size} delta_yaw")
+    return stamps, yaw
+
+
+def pose_stamped_xy_yaw(raw: bytes) -> tuple[int, np.ndarray]:
+    """geometry_msgs/PoseStamped bytes -> (stamp ns, ``[x, y, yaw]``)."""
+    r = CdrReader(raw, "geometry_msgs/PoseStamped")
+    stamp = r.header()
+    r._align(8)
+    r._need(56)
+    x, y, _z, qx, qy, qz, qw = struct.unpack_from(r.end + "7d", raw, r.pos)
+    yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+    return stamp, np.array([x, y, yaw])
+
+
+class PoseStampedWriter:
+    """Serializes planar poses as geometry_msgs/PoseStamped (little-endian CDR) for one frame."""
+
+    def __init__(self, frame_id: str) -> None:
+        name = frame_id.encode() + b"\0"
+        head = struct.pack("<I", len(name)) + name  # after the 8-byte stamp
+        pad = (-(8 + len(head))) % 8  # the pose's doubles are 8-aligned
+        self._prefix = b"\x00\x01\x00\x00"
+        self._frame = head + b"\0" * pad
+        self._pose = struct.Struct("<3d4d")
+
+    def pack(self, pose, stamp_ns: int) -> bytes:
+        x, y, yaw = float(pose[0]), float(pose[1]), float(pose[2])
+        h = 0.5 * yaw
+        return b"".join((self._prefix, struct.pack("<iI", stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000),
+                         self._frame, self._pose.pack(x, y, 0.0, 0.0, 0.0, math.sin(h), math.cos(h))))
