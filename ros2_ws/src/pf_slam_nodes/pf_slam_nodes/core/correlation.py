@@ -15,7 +15,6 @@ import numpy as np
 
 from .config import CorrelationConfig
 from .grid import OccupancyMap
-from .scan import transform_points_batch
 
 #: Border (cells) of clamp value around the stored field; bounds the window search shift.
 DEFAULT_PAD_CELLS = 32
@@ -522,16 +521,28 @@ def _prior_cost(poses: np.ndarray, predicted: np.ndarray, cfg: CorrelationConfig
 def _cost(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField, residual: str = "likelihood"):
     """Residuals ``(N, M)``, their gradients ``gx, gy`` (1/m) and the rotated points ``rx, ry``.
 
-    The bilinear interpolation is inlined (no ``(…, 2)`` stacking) because the refinement calls
-    this with small arrays where the per-call overhead of numpy dominates. (OpenCV's remap would
-    be faster, but its bilinear weights are quantised to 1/32 cell and a finite-difference
-    gradient of it stops Gauss-Newton centimetres short: measured, not used.)
+    ``residual='distance'``: the bilinear obstacle distance; ``'likelihood'``: ``1 - M`` with
+    ``M`` the bilinear ``exp(-d^2 / (2 sigma^2))``. (OpenCV's remap would interpolate faster,
+    but its bilinear weights are quantised to 1/32 cell, and Gauss-Newton on a finite-difference
+    gradient of it stopped centimetres short: measured, not used.)
     """
+    if residual == "distance":
+        return _bilinear_f32(poses, pts, field, field._dist_flat, True)
+    val, gx, gy, rx, ry = _bilinear_f32(poses, pts, field, field._prob_flat, True)
+    return 1.0 - val, -gx, -gy, rx, ry  # r = 1 - M, dr = -dM
+
+
+def _bilinear_f32(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField, table: np.ndarray,
+                  gradient: bool):
+    """Bilinear ``table`` values ``(N, M)`` at the points seen from every pose, in float32 like
+    the field, and (``gradient``) the exact gradient of the interpolant (1/m) with the rotated
+    points: ``val, gx, gy, rx, ry``. Inlined (no ``(..., 2)`` stacking): the refinement calls
+    this with small arrays, where numpy's per-call overhead dominates."""
     f32 = np.float32
     c = np.cos(poses[:, 2:3]).astype(f32)
     s = np.sin(poses[:, 2:3]).astype(f32)
     px, py = pts[:, 0].astype(f32), pts[:, 1].astype(f32)
-    rx = c * px - s * py  # rotated points (N, M), float32 like the field (robot frame: small)
+    rx = c * px - s * py  # rotated points (N, M), robot frame: small, float32 is plenty
     ry = s * px + c * py
     res = field.resolution
     inv = f32(1.0 / res)
@@ -546,9 +557,8 @@ def _cost(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField, residual: 
     v0 = np.floor(v)
     fu = u - u0
     fv = v - v0
-    idx_t = np.int32 if field._dist_flat.size < 2**31 - wp - 1 else np.intp
+    idx_t = np.int32 if table.size < 2**31 - wp - 1 else np.intp
     i00 = v0.astype(idx_t) * idx_t(wp) + u0.astype(idx_t)
-    table = field._dist_flat if residual == "distance" else field._prob_flat
     d00 = table[i00]
     a0 = table[i00 + 1] - d00
     d10 = table[i00 + wp]
@@ -556,11 +566,9 @@ def _cost(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField, residual: 
     top = d00 + fu * a0
     e = d10 + fu * a1 - top
     val = top + fv * e
-    gx = (a0 + fv * (a1 - a0)) * inv
-    gy = e * inv
-    if residual == "distance":
-        return val, gx, gy, rx, ry
-    return 1.0 - val, -gx, -gy, rx, ry  # r = 1 - M, dr = -dM
+    if not gradient:
+        return val
+    return val, (a0 + fv * (a1 - a0)) * inv, e * inv, rx, ry
 
 
 def _rowdot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -637,8 +645,8 @@ def refine(
 
 
 def _distances(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField) -> np.ndarray:
-    """``(N, M)`` bilinear obstacle distance of the points at every pose."""
-    return field.distance_bilinear(transform_points_batch(pts, poses))[0]
+    """``(N, M)`` float32 bilinear obstacle distance of the points at every pose."""
+    return _bilinear_f32(poses, pts, field, field._dist_flat, False)
 
 
 def correlate(

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import array
-import struct
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -14,19 +13,13 @@ from sensor_msgs.msg import LaserScan
 from ..io.bag import stamp_ns_of as stamp_to_ns  # noqa: F401  (Time or message -> int ns)
 from ..io.bag import yaw_to_quat
 from ..io.trajectory import quat_to_yaw
+from .cdr import CdrReader
 
 
 def stamp_ns_from_cdr(raw: bytes) -> int:
     """header.stamp (ns) of a serialized message that starts with a std_msgs/Header
-    (LaserScan, Image, ...), read from its CDR bytes without deserializing the rest.
-
-    Bytes 0-3 are the CDR encapsulation (byte 1: 1 = little endian, 0 = big endian); the
-    stamp's int32 sec and uint32 nanosec follow at offset 4.
-    """
-    if len(raw) < 12 or raw[0] != 0 or raw[1] not in (0, 1):
-        raise ValueError(f"not a CDR-serialized message with a header ({len(raw)} bytes)")
-    sec, nsec = struct.unpack_from("<iI" if raw[1] == 1 else ">iI", raw, 4)
-    return sec * 1_000_000_000 + nsec
+    (LaserScan, Image, ...), read from its CDR bytes without deserializing the rest."""
+    return CdrReader(raw, "message with a header").stamp_ns()
 
 
 def ns_to_stamp(ns: int) -> Time:
