@@ -215,3 +215,18 @@ def test_field_block_update_is_exact_across_tiles():
     np.testing.assert_allclose(f.log_likelihood, full.log_likelihood, atol=1e-5)
     assert f.set_obstacle_block(3, 2, block) == 0  # nothing changed: nothing to do
     np.testing.assert_array_equal(f.distance_m[150:160, 120:130], before[150:160, 120:130])
+
+
+def test_float32_precision_matches_float64_and_is_checked():
+    occ = world()
+    true_pose = np.array([6.1, 5.2, 0.4])
+    ang = beam_angles(-math.pi / 2, math.pi / 180, 181)
+    pts = scan_to_points(raycast(occ, true_pose, ang), ang, 0.1, 19.0)
+    field = build_likelihood_field(occ, RES, 0.05, 65, (0.0, 0.0), 0.3)
+    start = compose(true_pose, np.array([0.05, -0.04, 0.03]))[None]
+    b64, s64 = correlate(start, pts, field, CorrelationConfig())
+    b32, s32 = correlate(start, pts, field, CorrelationConfig(precision="float32"))
+    assert np.hypot(*(b64[0, :2] - b32[0, :2])) < 0.005 and abs(b64[0, 2] - b32[0, 2]) < 0.002
+    assert s32[0] == pytest.approx(s64[0], rel=0.05)
+    with pytest.raises(ValueError, match="precision"):
+        CorrelationConfig(precision="float16")

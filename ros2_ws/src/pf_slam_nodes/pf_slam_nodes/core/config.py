@@ -254,6 +254,11 @@ class CorrelationConfig(_ConfigBase):
     refine_residual : str
         ``'likelihood'``: residual ``1 - exp(-d^2 / (2 sigma^2))`` (smooth, default);
         ``'distance'``: residual ``d``.
+    precision : str
+        ``'float64'`` (default) or ``'float32'``: the arithmetic of the refinement's and the
+        score's bilinear lookups. float32 is ~25 % faster; on the car's 0.2 m grid it is as
+        accurate, on the indoor 0.05 m logs it is not (intel_910 segment test), so only
+        ``kaist.yaml`` sets it.
     skip_unknown : bool
         Drop the scan points that fall on never-observed map cells (occupancy -1) at the
         highest-weighted predicted particle before matching. Such points carry no information,
@@ -284,6 +289,7 @@ class CorrelationConfig(_ConfigBase):
     temperature: float = 20.0
     refine_iterations: int = 30
     refine_residual: str = "likelihood"
+    precision: str = "float64"
     skip_unknown: bool = False
     prior_sigma_xy_m: float = 0.0
     prior_sigma_yaw_rad: float = 0.0
@@ -310,6 +316,8 @@ class CorrelationConfig(_ConfigBase):
         _check_int("refine_iterations", self.refine_iterations, 0)
         if self.refine_residual not in ("likelihood", "distance"):
             raise ValueError(f"refine_residual must be 'likelihood' or 'distance', got {self.refine_residual!r}")
+        if self.precision not in ("float64", "float32"):
+            raise ValueError(f"precision must be 'float64' or 'float32', got {self.precision!r}")
         for name, value, step in (
             ("search_x_m", self.search_x_m, self.step_xy_m),
             ("search_y_m", self.search_y_m, self.step_xy_m),
