@@ -381,24 +381,29 @@ def _use_remap(field: LikelihoodField) -> bool:
     return max(field._dist.shape) < _REMAP_MAX_CELLS
 
 
-def _table_coords(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField):
-    """float32 remap coordinates ``u, v`` ``(N, M)`` of the points at every pose: cell-centre
-    based (cell ``k`` spans ``[k - 0.5, k + 0.5)``), so remap's rounding picks the containing cell."""
-    c = np.cos(poses[:, 2:3])
-    s = np.sin(poses[:, 2:3])
-    px, py = pts[:, 0], pts[:, 1]
-    inv = 1.0 / field.resolution
+def _points_in_table(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField, dtype=np.float64):
+    """The points seen from every pose: rotated ``rx, ry`` ``(N, M)`` (robot frame) and their
+    continuous coordinates ``u, v`` in the padded table (cell ``k`` spans ``[k - 0.5, k + 0.5)``),
+    in ``dtype``; the large pose part is formed in float64 and rounded once."""
+    c = np.cos(poses[:, 2:3]).astype(dtype, copy=False)
+    s = np.sin(poses[:, 2:3]).astype(dtype, copy=False)
+    px, py = pts[:, 0].astype(dtype, copy=False), pts[:, 1].astype(dtype, copy=False)
+    rx = c * px - s * py
+    ry = s * px + c * py
+    res = field.resolution
+    inv = dtype(1.0 / res)
     off = field.pad - 0.5
-    u = ((c * px - s * py) * inv + ((poses[:, 0:1] - field.origin[0]) * inv + off)).astype(np.float32)
-    v = ((s * px + c * py) * inv + ((poses[:, 1:2] - field.origin[1]) * inv + off)).astype(np.float32)
-    return u, v
+    u = rx * inv + ((poses[:, 0:1] - field.origin[0]) / res + off).astype(dtype, copy=False)
+    v = ry * inv + ((poses[:, 1:2] - field.origin[1]) / res + off).astype(dtype, copy=False)
+    return u, v, rx, ry
 
 
 def _window_scores_remap(cand: np.ndarray, pts: np.ndarray, field: LikelihoodField, sx: np.ndarray,
                          sy: np.ndarray) -> np.ndarray:
     """``(K, S)`` summed nearest-cell log-likelihood of every candidate pose ``(K, 3)`` at every
     whole-cell shift (dy-major (dy, dx) order), one remap per shift."""
-    u, v = _table_coords(cand, pts, field)
+    u, v, _, _ = _points_in_table(cand, pts, field)
+    u, v = u.astype(np.float32), v.astype(np.float32)  # remap's maps; its rounding picks the cell
     out = np.empty((cand.shape[0], sx.size * sy.size))
     table, clamp = field._loglik, float(field.min_log_likelihood)
     k = 0
@@ -541,29 +546,10 @@ def _bilinear_at(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField, tab
     small arrays, where numpy's per-call overhead dominates. ``precision='float32'`` (the table's
     own type) is ~25 % faster; in float32 the refinement converged differently enough to halve the
     wall agreement of the intel_910 segment test's map (0.85 -> 0.36), hence float64 by default."""
-    res = field.resolution
-    off = field.pad - 0.5
+    dtype = np.float32 if precision == "float32" else np.float64
+    u, v, rx, ry = _points_in_table(poses, pts, field, dtype)
+    inv = dtype(1.0 / field.resolution)
     hp, wp = field._dist.shape
-    if precision == "float32":
-        f32 = np.float32
-        c = np.cos(poses[:, 2:3]).astype(f32)
-        s = np.sin(poses[:, 2:3]).astype(f32)
-        px, py = pts[:, 0].astype(f32), pts[:, 1].astype(f32)
-        inv = f32(1.0 / res)
-        rx = c * px - s * py  # rotated points (N, M)
-        ry = s * px + c * py
-        # the large pose part is formed in float64, then rounded once
-        u = rx * inv + ((poses[:, 0:1] - field.origin[0]) / res + off).astype(f32)
-        v = ry * inv + ((poses[:, 1:2] - field.origin[1]) / res + off).astype(f32)
-    else:
-        c = np.cos(poses[:, 2:3])
-        s = np.sin(poses[:, 2:3])
-        px, py = pts[:, 0], pts[:, 1]
-        inv = 1.0 / res
-        rx = c * px - s * py
-        ry = s * px + c * py
-        u = rx * inv + ((poses[:, 0:1] - field.origin[0]) * inv + off)
-        v = ry * inv + ((poses[:, 1:2] - field.origin[1]) * inv + off)
     np.clip(u, 0.0, wp - 1.001, out=u)
     np.clip(v, 0.0, hp - 1.001, out=v)
     u0 = np.floor(u)

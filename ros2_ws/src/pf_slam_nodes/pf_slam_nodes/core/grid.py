@@ -101,6 +101,14 @@ def grid_geometry(cfg: GridConfig, center_xy: Optional[np.ndarray] = None) -> tu
     return height, width, origin
 
 
+def _occupancy_values(log_odds: np.ndarray) -> np.ndarray:
+    """float32 log-odds -> nav_msgs/OccupancyGrid int8: -1 where 0 (unknown), else
+    ``round(100 / (1 + exp(-l)))``."""
+    out = np.rint(100.0 / (1.0 + np.exp(-log_odds, dtype=np.float32))).astype(np.int8)
+    out[log_odds == 0] = -1
+    return out
+
+
 class LogOddsGrid:
     """One log-odds occupancy grid updated by ray tracing.
 
@@ -297,18 +305,11 @@ class LogOddsGrid:
             ``(H, W)`` int8: -1 where ``log_odds == 0`` (unknown), else ``round(100 * p)`` with
             ``p = 1 / (1 + exp(-log_odds))``.
         """
-        lo = self._crop(bounds)
-        p = 100.0 / (1.0 + np.exp(-lo, dtype=np.float32))
-        out = np.rint(p).astype(np.int8)
-        out[lo == 0] = -1
-        return out
+        return _occupancy_values(self._crop(bounds))
 
     def occupancy_at(self, flat_idx: np.ndarray) -> np.ndarray:
         """:meth:`occupancy` values of the cells at flat indices ``(K,)`` -> ``(K,)`` int8."""
-        lo = self.log_odds.reshape(-1)[flat_idx]
-        out = np.rint(100.0 / (1.0 + np.exp(-lo, dtype=np.float32))).astype(np.int8)
-        out[lo == 0] = -1
-        return out
+        return _occupancy_values(self.log_odds.reshape(-1)[flat_idx])
 
     @staticmethod
     def occupied_limit(occupied_threshold: int) -> np.float32:

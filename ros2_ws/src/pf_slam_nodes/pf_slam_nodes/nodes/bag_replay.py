@@ -9,7 +9,6 @@ number of messages published per topic goes out on pf_slam/replay_status (latche
 from __future__ import annotations
 
 import importlib
-import struct
 import time
 from typing import Any
 
@@ -21,10 +20,8 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 from ..io.bag import bag_info, read_bag
-from ..ros import qos, topics
+from ..ros import cdr, qos, topics
 from .common import param, run_node
-
-_CLOCK_CDR = struct.Struct("<IiI")  # CDR encapsulation (little endian), sec, nanosec
 
 LATCHED_TOPICS = ("/tf_static",)
 
@@ -132,8 +129,7 @@ class BagReplay(Node):
             if topic == self.scan_topic:
                 self.scans_published += 1
             if stamp_ns - self.last_clock_ns >= self.clock_period_ns or topic == self.scan_topic:
-                # rosgraph_msgs/Clock as CDR bytes: no message object per publish
-                self.pub_clock.publish(_CLOCK_CDR.pack(0x100, stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000))
+                self.pub_clock.publish(cdr.clock_bytes(stamp_ns))  # bytes: no message object per publish
                 self.last_clock_ns = stamp_ns
             self.pending = None
 

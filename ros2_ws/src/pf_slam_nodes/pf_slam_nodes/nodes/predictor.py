@@ -58,7 +58,6 @@ class Predictor(Node):
         self.deferred: deque[tuple] = deque()  # pass-throughs behind the correction in flight
         self.end_sent = False
         self.blocked = -1  # index of the scan known to need a correction while one is in flight
-        self.encoders_rejected = 0
         self.odom_topic = self.resolve_topic_name(topics.ODOM if source == "odom" else topics.ENCODERS)
         self.scan_topic = self.resolve_topic_name(topics.SCAN)
         self.pub = self.create_publisher(ParticleArray, topics.PARTICLES_PREDICTED, qos.pipeline())
@@ -111,7 +110,6 @@ class Predictor(Node):
                 self.get_logger().warn("encoders: JointState with fewer than 2 positions ignored",
                                        throttle_duration_sec=5.0)
             self.odom_received += 1  # counted: the end-of-stream count must still match
-            self.encoders_rejected += 1
             return
         self.encoders.append((stamp, float(position[0]), float(position[1])))
         self._drain()

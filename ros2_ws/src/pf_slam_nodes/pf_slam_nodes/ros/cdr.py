@@ -14,12 +14,16 @@ tests compare each against rclpy's own (de)serialization.
 """
 from __future__ import annotations
 
-import math
 import struct
 
 import numpy as np
 
+from ..io.bag import yaw_to_quat
+from ..io.trajectory import quat_to_yaw
+
 _HDR = 4  # encapsulation header; alignment counts from its end
+_LITTLE_ENDIAN = b"\x00\x01\x00\x00"  # the encapsulation header the writers below emit
+_STAMP = struct.Struct("<iI")  # builtin_interfaces/Time: sec, nanosec
 
 
 class CdrReader:
@@ -107,8 +111,12 @@ def pose_stamped_xy_yaw(raw: bytes) -> tuple[int, np.ndarray]:
     r._align(8)
     r._need(56)
     x, y, _z, qx, qy, qz, qw = struct.unpack_from(r.end + "7d", raw, r.pos)
-    yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
-    return stamp, np.array([x, y, yaw])
+    return stamp, np.array([x, y, float(quat_to_yaw(qx, qy, qz, qw))])
+
+
+def clock_bytes(stamp_ns: int) -> bytes:
+    """rosgraph_msgs/Clock (little-endian CDR) at ``stamp_ns``."""
+    return _LITTLE_ENDIAN + _STAMP.pack(stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000)
 
 
 class PoseStampedWriter:
@@ -118,12 +126,10 @@ class PoseStampedWriter:
         name = frame_id.encode() + b"\0"
         head = struct.pack("<I", len(name)) + name  # after the 8-byte stamp
         pad = (-(8 + len(head))) % 8  # the pose's doubles are 8-aligned
-        self._prefix = b"\x00\x01\x00\x00"
         self._frame = head + b"\0" * pad
         self._pose = struct.Struct("<3d4d")
 
     def pack(self, pose, stamp_ns: int) -> bytes:
-        x, y, yaw = float(pose[0]), float(pose[1]), float(pose[2])
-        h = 0.5 * yaw
-        return b"".join((self._prefix, struct.pack("<iI", stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000),
-                         self._frame, self._pose.pack(x, y, 0.0, 0.0, 0.0, math.sin(h), math.cos(h))))
+        return b"".join((_LITTLE_ENDIAN, _STAMP.pack(stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000),
+                         self._frame, self._pose.pack(float(pose[0]), float(pose[1]), 0.0,
+                                                      *yaw_to_quat(float(pose[2])))))

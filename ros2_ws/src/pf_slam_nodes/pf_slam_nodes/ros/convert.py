@@ -12,7 +12,6 @@ from sensor_msgs.msg import LaserScan
 
 from ..io.bag import stamp_ns_of as stamp_to_ns  # noqa: F401  (Time or message -> int ns)
 from ..io.bag import yaw_to_quat
-from ..io.trajectory import quat_to_yaw
 from .cdr import CdrReader
 
 
@@ -72,25 +71,11 @@ def scan_arrays(msg: LaserScan) -> tuple[np.ndarray, np.ndarray]:
 def pose_stamped(pose: np.ndarray, stamp_ns: int, frame_id: str) -> PoseStamped:
     msg = PoseStamped()
     msg.header.frame_id = frame_id
-    return fill_pose_stamped(msg, pose, stamp_ns)
-
-
-def fill_pose_stamped(msg: PoseStamped, pose: np.ndarray, stamp_ns: int) -> PoseStamped:
-    """Set stamp, x, y and yaw of an existing PoseStamped (re-using one message per publisher is
-    ~10x cheaper than building a new one: the nodes publish a pose per scan)."""
-    st = msg.header.stamp
-    st.sec, st.nanosec = int(stamp_ns // 1_000_000_000), int(stamp_ns % 1_000_000_000)
-    x, y, yaw = (float(v) for v in pose[:3])
-    msg.pose.position.x, msg.pose.position.y = x, y
+    msg.header.stamp = ns_to_stamp(stamp_ns)
+    msg.pose.position.x, msg.pose.position.y = float(pose[0]), float(pose[1])
     o = msg.pose.orientation
-    o.x, o.y, o.z, o.w = yaw_to_quat(yaw)
+    o.x, o.y, o.z, o.w = yaw_to_quat(float(pose[2]))
     return msg
-
-
-def pose_from_msg(msg: PoseStamped) -> np.ndarray:
-    o = msg.pose.orientation
-    return np.array([msg.pose.position.x, msg.pose.position.y,
-                     float(quat_to_yaw(o.x, o.y, o.z, o.w))])
 
 
 def transform(parent: str, child: str, pose: np.ndarray, stamp_ns: int) -> TransformStamped:
