@@ -75,6 +75,11 @@ def build_parser() -> argparse.ArgumentParser:
                             "(pf-slam texture {sim DATASET | real KAIST_DIR} --out OUT; --help for more)")
     t.add_argument("args", nargs=argparse.REMAINDER)
 
+    pr = sub.add_parser("params", help="the parameter reference generated from the nodes' declarations "
+                        "(markdown table; --write updates docs/parameters.md)")
+    pr.add_argument("--write", metavar="FILE", help="replace the generated table in FILE (docs/parameters.md)")
+    pr.add_argument("--bag", help="a bag for bag_replay to open (default: bags/sample_indoor)")
+
     b = sub.add_parser("bench", help="benchmarks: ParticleArray layout; the graph on the CARMEN logs "
                        "and on simulated car drives; the replay-only ceiling of a bag")
     b.add_argument("what", choices=["messages", "carmen", "car", "ceiling"])
@@ -136,6 +141,14 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "simulate":
         from .sim.car import run_args as run_car
         return run_car(args)
+    if args.command == "params":
+        from . import paramdoc
+        table = paramdoc.markdown_table(paramdoc.declared_parameters(args.bag or paramdoc.SAMPLE_BAG))
+        if args.write:
+            paramdoc.write(args.write, table)
+        else:
+            print(table)
+        return 0
     if args.command == "bench":
         if args.what == "messages":
             from .bench import messages

@@ -62,7 +62,6 @@ from typing import Any, Optional
 import numpy as np
 from nav_msgs.msg import MapMetaData, OccupancyGrid
 from pf_slam_interfaces.msg import ReplayStatus
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import String
@@ -72,28 +71,11 @@ from tf2_msgs.msg import TFMessage
 from ..core.texture import StereoRig, StereoTexturer, TextureConfig, TextureMap, interpolate_poses
 from ..io.trajectory import quat_to_yaw
 from ..ros import convert, qos, topics
-from .common import announce_when_matched, param, run_node
+from .common import announce_when_matched, declare_config, param, run_node
 
 TEXTURE = "texture"
 TEXTURE_METADATA = "texture_metadata"
 TEXTURE_STATUS = "pf_slam/texture_status"
-
-
-def declare_texture_config(node: Node, prefix: str = "texture") -> TextureConfig:
-    """Declare ``<prefix>.<field>`` for every ``TextureConfig`` field; return the config."""
-    values: dict[str, Any] = {}
-    for f in dataclasses.fields(TextureConfig):
-        default = f.default
-        p = node.declare_parameter(f"{prefix}.{f.name}", default,
-                                   ParameterDescriptor(dynamic_typing=True))
-        v = p.value
-        if isinstance(default, float) and isinstance(v, int) and not isinstance(v, bool):
-            v = float(v)
-        values[f.name] = v
-    try:
-        return TextureConfig.from_dict(values)
-    except ValueError as e:
-        raise ValueError(f"node {node.get_name()}: parameter section '{prefix}': {e}") from None
 
 
 def image_array(msg: Image) -> np.ndarray:
@@ -138,13 +120,12 @@ class TextureNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__("texture", **kwargs)
-        self.cfg = declare_texture_config(self)
+        self.cfg = declare_config(self, "texture", TextureConfig)
         self.map_frame = param(self, "map_frame", "map")
         self.base_frame = param(self, "base_frame", "base_link")
         period = param(self, "publish_period_s", 1.0)
         self.calibration_dir = param(self, "calibration_dir", "")
-        ext = self.declare_parameter("camera_extrinsic", [0.0] * 12,
-                                     ParameterDescriptor(dynamic_typing=True)).value
+        ext = param(self, "camera_extrinsic", [0.0] * 12)
         self.queue_depth = param(self, "queue_depth", 1)
         self.max_pending_pairs = param(self, "max_pending_pairs", 10)
         self.final_idle_s = param(self, "final_idle_s", 2.0)
