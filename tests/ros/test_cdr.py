@@ -63,3 +63,11 @@ def test_clock_bytes_are_a_clock_message():
     from rosgraph_msgs.msg import Clock
     stamp = 1_318_000_000_123_456_789
     assert convert.stamp_to_ns(deserialize_message(cdr.clock_bytes(stamp), Clock).clock) == stamp
+
+
+@pytest.mark.parametrize("parent, child", [("odom", "base_link"), ("o", "b"), ("odom_x", "base_footprint1")])
+def test_transform_writer_is_a_tf_message(parent, child):
+    from tf2_msgs.msg import TFMessage
+    pose, stamp = np.array([3.5, -1.25, -2.0]), 1_700_000_001_000_000_007
+    raw = cdr.TransformWriter(parent, child).pack(pose, stamp)
+    assert deserialize_message(raw, TFMessage) == TFMessage(transforms=[convert.transform(parent, child, pose, stamp)])

@@ -63,3 +63,12 @@ def test_snapshot(tmp_path):
     # a trajectory point at world (0, 3) lands at pixel ((0+1.5)/0.05*2, (40-(0.75/0.05))*2)
     u, v = 60, 50
     assert red[v - 2:v + 3, u - 2:u + 3].any()
+
+
+def test_trinary_is_map_server_thresholds():
+    from pf_slam_nodes.io.mapfile import trinary
+    occ = np.array([[-1, 0, 25, 26, 64, 65, 100]], dtype=np.int8)
+    assert trinary(occ).tolist() == [[-1, 0, 0, -1, -1, 100, 100]]
+    assert trinary(occ, occupied_thresh=0.5, free_thresh=0.3).tolist() == [[-1, 0, 0, 0, 100, 100, 100]]
+    with pytest.raises(ValueError, match="free_thresh"):
+        trinary(occ, occupied_thresh=0.2, free_thresh=0.3)

@@ -52,6 +52,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-texture", action="store_true",
                    help="do not run the texture node (stereo topics in the bag are then ignored)")
     r.add_argument("--snapshot-every", type=int, default=200, help="snapshot PNG every N scans (0: none)")
+    r.add_argument("--no-record", action="store_true", help="do not write OUT/result.mcap")
+    r.add_argument("--record-map-every", type=float, metavar="S",
+                   help="result.mcap: a /map every S seconds of bag time (default: bag duration / 20; "
+                        "the final map always)")
 
     e = sub.add_parser("eval", help="ATE/RPE against a reference trajectory; Kümmerle relations error")
     e.add_argument("--est", help="estimated trajectory (TUM)")

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import resource
+import shutil
 import signal
 import subprocess
 import sys
@@ -137,6 +138,22 @@ def detect_inputs(bag: str, info: dict) -> dict[str, dict[str, Any]]:
     mount = _laser_mount(bag, topics, scan_frame)
     if mount is not None:
         out["/**"] = {"laser.extrinsic": mount}
+    for node, params in tf_inputs(bag, topics, scan_frame).items():
+        out.setdefault(node, {}).update(params)
+    return out
+
+
+def tf_inputs(bag: str, topics: dict, scan_frame: str | None) -> dict[str, dict[str, Any]]:
+    """REP-105 transforms the bag already has, so the graph does not publish them twice: its
+    own /tf (odom -> base_link from the robot) turns the predictor's off, a /tf_static mount of
+    the scan's frame the mapper's."""
+    out: dict[str, dict[str, Any]] = {}
+    if "/tf" in topics:
+        out["predictor"] = {"publish_odom_tf": False}
+    if "/tf_static" in topics and scan_frame:
+        for _, msgtype, _, raw in read_bag(bag, topics=["/tf_static"]):
+            if any(tr.child_frame_id == scan_frame for tr in deserialize(raw, msgtype).transforms):
+                out["mapper"] = {"publish_sensor_tf": False}
     return out
 
 
@@ -286,6 +303,121 @@ class _Recorder:
         sys.stderr.flush()
 
 
+class ResultRecorder:
+    """Records the run's outputs into ``OUT/result.mcap`` (rosbags' MCAP writer), so a user opens
+    the run in Foxglove Studio (or ``ros2 bag play``) and scrubs through it.
+
+    Subscribes raw (the CDR bytes go to the file as received: no message objects per scan at the
+    car's 100 Hz): the scan topic, pose, path, /tf, /tf_static, map (at most one per
+    ``map_every_s`` of bag time, always the final one) and the texture image. Log times are the
+    messages' header stamps (bag time). It announces itself on pf_slam/ready once its streams
+    are matched, so the replay waits for it and nothing is missed.
+    """
+
+    NAME = "pf_slam_result_recorder"
+
+    def __init__(self, node, path: Path, scan_topic: str, map_every_s: float, texture: bool = False,
+                 latched_tf_static: bool = True) -> None:
+        from rclpy.qos import QoSProfile
+
+        from .io.bag import open_writer
+        from .ros import qos, topics
+        self.path = path
+        self._bag_dir = path.with_suffix(".bag_tmp")
+        if self._bag_dir.exists():
+            shutil.rmtree(self._bag_dir)
+        self._cm = open_writer(self._bag_dir)
+        self.bag = self._cm.__enter__()
+        self.map_every_ns = int(map_every_s * 1e9)
+        self.last_map_ns: int | None = None
+        self.last_stamp = 0
+        # topic, type, QoS, matched publishers to wait for (volatile topics only)
+        streams: list[tuple[str, str, QoSProfile, int]] = [
+            (scan_topic, "sensor_msgs/msg/LaserScan", qos.pipeline(), 1),
+            ("/" + topics.POSE, "geometry_msgs/msg/PoseStamped", qos.pipeline(), 1),
+            ("/" + topics.PATH, "nav_msgs/msg/Path", qos.outputs(10), 1),
+            (topics.TF, "tf2_msgs/msg/TFMessage", qos.outputs(10000), 2),  # mapper + predictor or the bag
+            (topics.TF_STATIC, "tf2_msgs/msg/TFMessage", qos.latched(10), 0),
+            ("/" + topics.MAP, "nav_msgs/msg/OccupancyGrid", qos.latched(), 0)]
+        if texture:
+            from .nodes.texture import TEXTURE
+            streams.append(("/" + TEXTURE, "sensor_msgs/msg/Image", qos.latched(), 0))
+        self._subs = []
+        for topic, msgtype, profile, wait in streams:
+            self.bag.add_connection(topic, msgtype, latched=profile.durability == qos.latched().durability)
+            cb = self._on_map if topic == "/" + topics.MAP else self._writer_for(topic, msgtype)
+            sub = node.create_subscription(_message_class(msgtype), topic, cb, profile, raw=True)
+            self._subs.append((sub, wait))
+        self._announce(node)
+
+    def _announce(self, node) -> None:
+        from std_msgs.msg import String
+
+        from .ros import qos, topics
+        pub = node.create_publisher(String, topics.READY, qos.latched(depth=1))
+
+        def check() -> None:
+            if all(sub.get_publisher_count() >= n for sub, n in self._subs):
+                pub.publish(String(data=self.NAME))
+                timer.cancel()
+        timer = node.create_timer(0.05, check)
+
+    def _writer_for(self, topic: str, msgtype: str):
+        from .ros import convert
+        stamp_of = cdr.tf_message_stamp if msgtype == "tf2_msgs/msg/TFMessage" else convert.stamp_ns_from_cdr
+
+        def write(raw: bytes) -> None:
+            stamp = stamp_of(raw)
+            if stamp is not None:
+                self.last_stamp = stamp
+            self.bag.write_raw(topic, self.last_stamp if stamp is None else stamp, raw)
+        return write
+
+    def _on_map(self, raw: bytes) -> None:
+        """A map at most every map_every_ns of bag time (a car map is megabytes); the final one
+        is written by finish()."""
+        from .ros import convert
+        stamp = convert.stamp_ns_from_cdr(raw)
+        if self.last_map_ns is None or stamp - self.last_map_ns >= self.map_every_ns:
+            self.bag.write_raw("/map", stamp, raw)
+            self.last_map_ns = stamp
+
+    @property
+    def counts(self) -> dict[str, int]:
+        return self.bag.counts
+
+    def finish(self, final_map=None) -> None:
+        """Write the final map (if not yet in the file), close, and leave a single result.mcap."""
+        if final_map is not None:
+            from rclpy.serialization import serialize_message
+            stamp = stamp_ns_of(final_map)
+            if self.last_map_ns != stamp:
+                self.bag.write_raw("/map", stamp, serialize_message(final_map))
+                self.last_map_ns = stamp
+        self.close()
+
+    def close(self) -> None:
+        if self._cm is None:
+            return
+        self._cm.__exit__(None, None, None)
+        self._cm = None
+        (mcap,) = self._bag_dir.glob("*.mcap")
+        mcap.replace(self.path)
+        shutil.rmtree(self._bag_dir)
+
+
+def _message_class(msgtype: str):
+    from .nodes.bag_replay import message_class
+    return message_class(msgtype)
+
+
+def _drain_result(ex, result: ResultRecorder, poses: int, timeout_s: float = 5.0) -> None:
+    """Spin until the result recorder has every pose the run's recorder has (both subscribe)."""
+    deadline = time.monotonic() + timeout_s
+    while result.counts.get("/pose", 0) < poses and time.monotonic() < deadline:
+        ex.spin_once(timeout_sec=0.05)
+
+
 def make_executor(kind: str, context):
     """'events': rclpy's C++ EventsExecutor (rclpy.experimental, much less Python per callback);
     'single': the classic SingleThreadedExecutor. The graph's result does not depend on it."""
@@ -318,8 +450,12 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         snapshot_every: int = 200, progress: bool = True, idle_timeout_s: float = 60.0,
         drain_timeout_s: float = 5.0,
         domain_id: int | None = None, executor: str = "events", texture: bool = True,
-        texture_timeout_s: float = 120.0) -> RunResult:
-    """Replay `bag` through the graph and write the outputs into `out_dir`; returns the summary."""
+        texture_timeout_s: float = 120.0, record: bool = True,
+        record_map_every_s: float | None = None) -> RunResult:
+    """Replay `bag` through the graph and write the outputs into `out_dir`; returns the summary.
+
+    `record`: also write result.mcap (ResultRecorder), with a map every `record_map_every_s`
+    of bag time (default: bag duration / 20)."""
     import rclpy
 
     if processes not in ("single", "multi"):
@@ -334,8 +470,8 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
                    "correlator": {"expected_observers": 1},  # the recorder below
                    "predictor": {"expected_observers": 1},
                    "texture": {"expected_observers": 1}})
-    if texture:
-        layers[-1]["bag_replay"]["wait_for"] = ["predictor", "correlator", "mapper", "texture"]
+    layers[-1]["bag_replay"]["wait_for"] = (["predictor", "correlator", "mapper"] + (["texture"] if texture else [])
+                                            + ([ResultRecorder.NAME] if record else []))
     if overrides:
         layers.append(overrides)
     per_node = {n: node_params(layers, n) for n in node_names}
@@ -349,6 +485,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=domain_id)
     children: list[subprocess.Popen] = []
+    result: ResultRecorder | None = None
     nodes = []  # every node of this process, destroyed at the end: a node left alive keeps its
     ex = None   # DDS readers matched by later runs on the same domain (ghost subscribers)
     t_start = time.monotonic()
@@ -358,6 +495,10 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         ex = make_executor(executor, ctx)
         ex.add_node(rec_node)
         rec = _Recorder(rec_node, out, scans_total, bag_duration_s, snapshot_every, progress, texture)
+        if record:
+            result = ResultRecorder(rec_node, out / "result.mcap", per_node["bag_replay"].get("scan_topic", "/scan"),
+                                    record_map_every_s if record_map_every_s is not None else bag_duration_s / 20,
+                                    texture)
         texture_node = None
         if processes == "single":
             for name in node_names:
@@ -412,6 +553,9 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
             raise outcome.result()
         wall = (slam_done["t"] if slam_done else time.monotonic()) - t_start
         rec.print_progress(final=True)
+        if result is not None:
+            _drain_result(ex, result, len(rec.poses))
+            result.finish(rec.map_msg)
         texture_out = None
         if texture_node is not None and texture_node.wait_idle(30.0):
             texture_out = texture_node.render()  # in the final /map geometry
@@ -428,6 +572,8 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
                 c.wait()
         if ex is not None:
             ex.shutdown()
+        if result is not None:
+            result.close()  # a failed run's partial recording stays readable
         for node in nodes:
             node.destroy_node()
         if ctx.ok():
@@ -462,6 +608,8 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         "snapshots_skipped": rec.snapshots_skipped,
         "complete": True,
     }
+    if result is not None:
+        summary["result_mcap"] = {"file": result.path.name, "messages": dict(result.counts)}
     if texture_summary is not None:
         summary["texture"] = texture_summary
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
@@ -523,7 +671,8 @@ def _spawn(per_node: dict[str, dict[str, Any]], domain_id: int, out: Path) -> li
 def run_cli(args: Any, log: Callable[[str], None] = print) -> int:
     res = run(args.bag, args.out, params_file=args.params, rate=args.rate, processes=args.processes,
               overrides=_cli_overrides(args), snapshot_every=args.snapshot_every, executor=args.executor,
-              texture=not getattr(args, "no_texture", False))
+              texture=not getattr(args, "no_texture", False), record=not getattr(args, "no_record", False),
+              record_map_every_s=getattr(args, "record_map_every", None))
     s = res.summary
     log(f"{s['scans_processed']} scans ({s['scans_corrected']} corrected), {s['scans_dropped']} dropped, "
         f"wall {s['wall_time_s']:.1f} s, RTF {s['real_time_factor']}x; outputs in {args.out}")

@@ -25,6 +25,21 @@ YAML_OCCUPIED_THRESH = 0.65
 YAML_FREE_THRESH = 0.196
 
 
+def trinary(occupancy: np.ndarray, occupied_thresh: float = 0.65, free_thresh: float = 0.25) -> np.ndarray:
+    """OccupancyGrid data 0..100 / -1 -> int8 100 (occupied), 0 (free), -1 (unknown), as
+    map_server's trinary mode: ``occ >= 100 * occupied_thresh`` is occupied, ``0 <= occ <=
+    100 * free_thresh`` free, the rest (and -1) unknown. What /map carries and map.pgm stores."""
+    if not 0.0 <= free_thresh < occupied_thresh <= 1.0:
+        raise ValueError(f'need 0 <= free_thresh < occupied_thresh <= 1, got '
+                         f'{free_thresh}, {occupied_thresh}')
+    o = np.asarray(occupancy).astype(np.int16)
+    out = np.full(o.shape, -1, dtype=np.int8)
+    known = (o >= 0) & (o <= 100)
+    out[known & (o <= round(free_thresh * 100))] = 0
+    out[known & (o >= round(occupied_thresh * 100))] = 100
+    return out
+
+
 def write_map(out_dir: str | os.PathLike, occupancy: np.ndarray, resolution: float,
               origin_xy: tuple[float, float] | np.ndarray, name: str = 'map',
               occupied_thresh: float = 0.65, free_thresh: float = 0.25) -> Path:
@@ -47,16 +62,12 @@ def write_map(out_dir: str | os.PathLike, occupancy: np.ndarray, resolution: flo
         raise ValueError(f'occupancy must be a non-empty (H, W) array, got shape {occ.shape}')
     if not resolution > 0:
         raise ValueError(f'resolution must be > 0, got {resolution}')
-    if not 0.0 <= free_thresh < occupied_thresh <= 1.0:
-        raise ValueError(f'need 0 <= free_thresh < occupied_thresh <= 1, got '
-                         f'{free_thresh}, {occupied_thresh}')
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    o = occ.astype(np.int16)
-    img = np.full(o.shape, PIX_UNKNOWN, dtype=np.uint8)
-    known = (o >= 0) & (o <= 100)
-    img[known & (o <= round(free_thresh * 100))] = PIX_FREE
-    img[known & (o >= round(occupied_thresh * 100))] = PIX_OCCUPIED
+    tri = trinary(occ, occupied_thresh, free_thresh)
+    img = np.full(tri.shape, PIX_UNKNOWN, dtype=np.uint8)
+    img[tri == 0] = PIX_FREE
+    img[tri == 100] = PIX_OCCUPIED
     img = np.ascontiguousarray(img[::-1])  # north up
     h, w = img.shape
     pgm = out / f'{name}.pgm'

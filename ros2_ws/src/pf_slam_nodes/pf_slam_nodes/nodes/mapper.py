@@ -5,9 +5,11 @@ particles/updated (ParticleArray: every corrected set, and the end-of-run pass-t
 pf_slam/replay_status (messages per topic, at the end of the bag).
 Publishes: pf_slam/grid (after every integration, the patch of cells the scan touched, for
 the correlator), map + map_metadata (latched, on a timer and once more after the last scan),
-path (on the timer: the poses of the corrected scans), /tf (map -> odom, at every correction:
-between corrections map -> odom does not change, since scan poses are then the corrected pose
-composed with the odometry increment).
+path (on the timer: the poses of the corrected scans), /tf (map -> odom = map_T_base *
+odom_T_base^-1, at every correction: between corrections map -> odom does not change, since scan
+poses are then the corrected pose composed with the odometry increment), /tf_static (base_frame ->
+the scan's frame from filter.sensor_offset_* / laser.extrinsic, once, if publish_sensor_tf).
+/map holds map_server trinary values: 100 / 0 / -1 by occupied_thresh / free_thresh.
 """
 from __future__ import annotations
 
@@ -23,6 +25,8 @@ from tf2_msgs.msg import TFMessage
 
 from ..core.motion import compose, relative_pose
 from ..core.stages import MappingStage
+from ..io.calib import matrix_to_quat
+from ..io.mapfile import trinary
 from ..ros import convert, qos, topics
 from .common import ScanQueue, announce_when_matched, declare_config, param, run_node
 
@@ -34,6 +38,9 @@ class Mapper(Node):
                                   declare_config(self, "laser"))
         self.map_frame = param(self, "map_frame", "map")
         self.odom_frame = param(self, "odom_frame", "odom")
+        self.base_frame = param(self, "base_frame", "base_link")
+        self.thresholds = (param(self, "occupied_thresh", 0.65), param(self, "free_thresh", 0.25))
+        trinary(np.zeros((1, 1)), *self.thresholds)  # bad thresholds fail at start-up
         period = param(self, "map_publish_period_s", 1.0)
         self.scan_topic = self.resolve_topic_name(topics.SCAN)
         self.scans = ScanQueue()
@@ -47,7 +54,11 @@ class Mapper(Node):
         self.pub_meta = self.create_publisher(MapMetaData, topics.MAP_METADATA, qos.latched())
         self.pub_path = self.create_publisher(Path, topics.PATH, qos.outputs(10))
         self.pub_tf = self.create_publisher(TFMessage, topics.TF, qos.outputs())
-        announce_when_matched(self, [(self.pub_grid, 1)])  # the correlator
+        self.pub_tf_static = (self.create_publisher(TFMessage, topics.TF_STATIC, qos.latched())
+                              if param(self, "publish_sensor_tf", True) else None)
+        observers = param(self, "expected_observers", 0)  # a recorder of /tf and /path
+        announce_when_matched(self, [(self.pub_grid, 1)]  # the correlator
+                              + ([(self.pub_tf, observers), (self.pub_path, observers)] if observers else []))
         self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline(), raw=True)
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
@@ -71,6 +82,8 @@ class Mapper(Node):
             scan = self.scans.take(pa.scan_index)
             stamp = convert.stamp_to_ns(scan.header.stamp)
             pose = np.asarray(pa.pose, dtype=np.float64)
+            if self.pub_tf_static is not None:
+                self._publish_sensor_tf(scan.header.frame_id, stamp)
             if pa.update:
                 ranges, angles = convert.scan_arrays(scan)
                 patch = self.stage.integrate(pose, ranges, angles, float(scan.range_min),
@@ -85,6 +98,20 @@ class Mapper(Node):
             self.last_stamp = stamp
         self._maybe_finish()
 
+    def _publish_sensor_tf(self, frame: str, stamp: int) -> None:
+        """base_frame -> the scan's frame (latched, once): the laser mounting the SLAM uses."""
+        self.pub_tf_static, pub = None, self.pub_tf_static
+        if not frame or frame == self.base_frame:
+            return
+        tf = convert.transform(self.base_frame, frame, self.stage.filter_cfg.sensor_offset, stamp)
+        ext = self.stage.laser_cfg.extrinsic
+        if any(ext):  # a tilted laser: its full 3D mounting
+            t = tf.transform
+            t.translation.x, t.translation.y, t.translation.z = ext[9:]
+            q = matrix_to_quat(np.asarray(ext[:9]).reshape(3, 3))
+            t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w = q
+        pub.publish(TFMessage(transforms=[tf]))
+
     def _maybe_finish(self) -> None:
         if self.total is not None and self.last_index == self.total - 1:
             self.publish_map()
@@ -94,7 +121,7 @@ class Mapper(Node):
         if not self.stage.ready:
             return
         occ, res, origin = self.stage.map_occupancy()
-        msg = convert.grid_to_msg(occ, res, origin, self.last_stamp, self.map_frame)
+        msg = convert.grid_to_msg(trinary(occ, *self.thresholds), res, origin, self.last_stamp, self.map_frame)
         self.pub_map.publish(msg)
         self.pub_meta.publish(msg.info)
         path = Path()

@@ -4,7 +4,8 @@ Subscribes: scan (LaserScan; only its stamp is read, from the serialized bytes),
 (nav_msgs/Odometry) or encoders (JointState wheel angles, rad) with optional fog (FogBatch or
 Vector3Stamped yaw increments, which then replace the wheels' yaw), particles/updated (the
 corrected set), pf_slam/replay_status (end of the bag). Publishes: pose (PoseStamped, map
-frame, exactly one per scan, in scan order), particles/predicted (one per correction).
+frame, exactly one per scan, in scan order), particles/predicted (one per correction), /tf
+(odom_frame -> base_frame: the dead-reckoned odometry at every scan's stamp, REP 105).
 
 Per scan, in order: the odometry pose at the scan stamp is looked up; if the robot moved less
 than filter.min_travel_m / filter.min_rotation_rad since the last correction, the scan is a
@@ -29,6 +30,7 @@ from nav_msgs.msg import Odometry
 from pf_slam_interfaces.msg import FogBatch, ParticleArray, ReplayStatus
 from rclpy.node import Node
 from sensor_msgs.msg import JointState, LaserScan
+from tf2_msgs.msg import TFMessage
 
 from ..core.motion import compose
 from ..core.odometry import GyroBuffer, OdometryBuffer, WheelOdometryIntegrator
@@ -63,9 +65,11 @@ class Predictor(Node):
         self.pub = self.create_publisher(ParticleArray, topics.PARTICLES_PREDICTED, qos.pipeline())
         self.pub_pose = self.create_publisher(PoseStamped, topics.POSE, qos.pipeline())
         self.pose_cdr = cdr.PoseStampedWriter(self.map_frame)  # one pose per scan: published as bytes
-        # the correlator; bag_replay (paces on pose) + observers that must see every pose
-        announce_when_matched(self, [(self.pub, 1),
-                                     (self.pub_pose, 1 + param(self, "expected_observers", 0))])
+        self._init_odom_tf()
+        # the correlator; bag_replay (paces on pose) + observers that must see every pose (and /tf)
+        observers = param(self, "expected_observers", 0)
+        announce_when_matched(self, [(self.pub, 1), (self.pub_pose, 1 + observers)]
+                              + ([(self.pub_tf, observers)] if observers and self.pub_tf else []))
         self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline(), raw=True)
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
@@ -93,6 +97,17 @@ class Predictor(Node):
             self.create_subscription(FogBatch, topics.FOG, self._on_fog_batch, qos.pipeline(10000), raw=True)
         elif fog == "vector3":
             self.create_subscription(Vector3Stamped, topics.FOG, self._on_fog_vector, qos.pipeline(100000))
+
+    def _init_odom_tf(self) -> None:
+        """odom -> base_link on /tf, one per scan, as bytes (the car's lidar runs at 100 Hz)."""
+        odom_frame, base_frame = param(self, "odom_frame", "odom"), param(self, "base_frame", "base_link")
+        self.pub_tf = (self.create_publisher(TFMessage, topics.TF, qos.outputs())
+                       if param(self, "publish_odom_tf", True) else None)
+        self.odom_tf_cdr = cdr.TransformWriter(odom_frame, base_frame)
+
+    def _publish_odom_tf(self, odom: np.ndarray, stamp: int) -> None:
+        if self.pub_tf is not None:
+            self.pub_tf.publish(self.odom_tf_cdr.pack(odom, stamp))
 
     # ------------------------------------------------------------------ inputs
     def _on_odom(self, msg: Odometry) -> None:
@@ -196,12 +211,14 @@ class Predictor(Node):
                     break
                 self.odom.lookup(stamp, final=final)  # consume what peek saw
                 self.scans.popleft()
+                self._publish_odom_tf(odom, stamp)
                 self.deferred.append((index, stamp, odom, delta))
                 continue
             odom = self.odom.lookup(stamp, final=final)
             if odom is None:
                 break
             self.scans.popleft()
+            self._publish_odom_tf(odom, stamp)
             self._predict(index, stamp, odom)
         self.odom.trim()
         self._maybe_send_end()

@@ -133,3 +133,29 @@ class PoseStampedWriter:
         return b"".join((_LITTLE_ENDIAN, _STAMP.pack(stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000),
                          self._frame, self._pose.pack(float(pose[0]), float(pose[1]), 0.0,
                                                       *yaw_to_quat(float(pose[2])))))
+
+
+class TransformWriter:
+    """Serializes a planar transform as tf2_msgs/TFMessage with one TransformStamped
+    (little-endian CDR) for a fixed parent -> child: odom -> base_link at every scan."""
+
+    def __init__(self, parent: str, child: str) -> None:
+        def string(s: str) -> bytes:
+            b = s.encode() + b"\0"
+            return struct.pack("<I", len(b)) + b
+        head = string(parent)  # after the count (4) and the stamp (8)
+        head += b"\0" * ((-(12 + len(head))) % 4) + string(child)
+        self._frames = head + b"\0" * ((-(12 + len(head))) % 8)  # the doubles are 8-aligned
+        self._count = struct.pack("<I", 1)
+        self._tf = struct.Struct("<3d4d")
+
+    def pack(self, pose, stamp_ns: int) -> bytes:
+        return b"".join((_LITTLE_ENDIAN, self._count,
+                         _STAMP.pack(stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000), self._frames,
+                         self._tf.pack(float(pose[0]), float(pose[1]), 0.0, *yaw_to_quat(float(pose[2])))))
+
+
+def tf_message_stamp(raw: bytes) -> int | None:
+    """tf2_msgs/TFMessage bytes -> the first transform's header stamp (ns); None if empty."""
+    r = CdrReader(raw, "tf2_msgs/TFMessage")
+    return r.stamp_ns() if r.u32() else None
