@@ -5,7 +5,7 @@ import argparse
 import json
 import sys
 
-from .graph import RunError
+from .graph import DEFAULT_INPUTS, RunError
 from .io.bag import BagError
 
 
@@ -52,6 +52,14 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-texture", action="store_true",
                    help="do not run the texture node (stereo topics in the bag are then ignored)")
     r.add_argument("--snapshot-every", type=int, default=200, help="snapshot PNG every N scans (0: none)")
+    for role, what in (("scan", "sensor_msgs/LaserScan"), ("odom", "nav_msgs/Odometry"),
+                       ("encoders", "sensor_msgs/JointState wheel angles (rad)"),
+                       ("fog", "gyro yaw increments with encoders: FogBatch or Vector3Stamped"),
+                       ("stereo-left", "sensor_msgs/Image (texture)"), ("stereo-right", "sensor_msgs/Image (texture)")):
+        default = DEFAULT_INPUTS[role.replace("-", "_")]
+        r.add_argument(f"--{role}-topic", metavar="TOPIC",
+                       help=f"the bag's {what} topic (default: {default}"
+                            + (", or the bag's only one of that type)" if role in ("scan", "odom", "encoders") else ")"))
     r.add_argument("--no-record", action="store_true", help="do not write OUT/result.mcap")
     r.add_argument("--record-map-every", type=float, metavar="S",
                    help="result.mcap: a /map every S seconds of bag time (default: bag duration / 20; "

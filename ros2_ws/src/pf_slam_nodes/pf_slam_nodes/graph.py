@@ -90,25 +90,104 @@ def node_params(layers: list[dict[str, dict[str, Any]]], node: str) -> dict[str,
 
 
 # ---------------------------------------------------------------------------- bag inspection
-def detect_inputs(bag: str, info: dict) -> dict[str, dict[str, Any]]:
-    """Parameters implied by the bag: odometry source and pairing, gyro, wheel geometry (from a
-    converted bag's custom data), and the laser's 3D mounting (from /tf_static) when it is tilted."""
+# ---------------------------------------------------------------------------- bring your own bag
+#: The graph's inputs: the nodes' (relative) topic name -> the message types it takes
+INPUT_TYPES: dict[str, tuple[str, ...]] = {
+    "scan": ("sensor_msgs/msg/LaserScan",),
+    "odom": ("nav_msgs/msg/Odometry",),
+    "encoders": ("sensor_msgs/msg/JointState",),
+    "fog": ("pf_slam_interfaces/msg/FogBatch", "geometry_msgs/msg/Vector3Stamped"),
+    "stereo_left": ("sensor_msgs/msg/Image",),
+    "stereo_right": ("sensor_msgs/msg/Image",),
+}
+DEFAULT_INPUTS = {"scan": "/scan", "odom": "/odom", "encoders": "/encoders", "fog": "/fog",
+                  "stereo_left": TEXTURE_INPUT, "stereo_right": "/stereo/right/image_raw"}
+ROLE_WORDS = {"scan": "lidar (LaserScan)", "odom": "odometry (Odometry)", "encoders": "wheel encoders (JointState)",
+              "fog": "gyro yaw (fog)", "stereo_left": "stereo left (texture)", "stereo_right": "stereo right (texture)"}
+
+
+def select_inputs(bag: str, info: dict, requested: dict[str, str] | None = None) -> dict[str, str]:
+    """Input -> the bag's topic for it: the requested name (``--scan-topic`` ..., or ``topics.*``
+    in the parameter file; it must exist with that input's type), else the default name, else,
+    for the lidar and the odometry, the bag's only topic of that type. Odometry wins over
+    encoders unless encoders are requested; a gyro is used only with encoders."""
     topics = info["topics"]
-    if "/scan" not in topics:
-        found = ", ".join(f"{t} [{m}]" for t, (m, _) in sorted(topics.items())) or "none"
-        raise RunError(f"{bag}: no /scan (sensor_msgs/msg/LaserScan) topic; found: {found}")
-    if "/odom" in topics:
-        source, topic = "odom", "/odom"
-    elif "/encoders" in topics:
-        source, topic = "encoders", "/encoders"
-    else:
-        raise RunError(f"{bag}: needs /odom (nav_msgs/msg/Odometry) or /encoders "
-                       f"(sensor_msgs/msg/JointState) for the motion model; found: {', '.join(topics)}")
+    found = ", ".join(f"{t} [{m}]" for t, (m, _) in sorted(topics.items())) or "none"
+    req = {k: v for k, v in (requested or {}).items() if v}
+    sel: dict[str, str] = {}
+    for role, name in req.items():
+        if role not in INPUT_TYPES:
+            raise RunError(f"unknown input {role!r}; inputs: {', '.join(INPUT_TYPES)}")
+        if name not in topics:
+            raise RunError(f"{bag}: {role} topic {name} is not in the bag; found: {found}")
+        if topics[name][0] not in INPUT_TYPES[role]:
+            raise RunError(f"{bag}: {name} is {topics[name][0]}; {role} needs {' or '.join(INPUT_TYPES[role])}")
+        sel[role] = name
+    for role, name in DEFAULT_INPUTS.items():
+        if role not in sel and topics.get(name, ("",))[0] in INPUT_TYPES[role]:
+            sel[role] = name
+    for role in ("scan", "odom", "encoders"):
+        of_type = sorted(t for t, (m, _) in topics.items() if m in INPUT_TYPES[role])
+        if role not in sel and len(of_type) == 1:
+            sel[role] = of_type[0]
+        elif role == "scan" and role not in sel and of_type:
+            raise RunError(f"{bag}: several LaserScan topics ({', '.join(of_type)}): choose one with --scan-topic")
+    if "scan" not in sel:
+        raise RunError(f"{bag}: no sensor_msgs/msg/LaserScan topic (set --scan-topic); found: {found}")
+    if "odom" in sel and "encoders" in sel:
+        del sel["odom" if "encoders" in req and "odom" not in req else "encoders"]
+    if "odom" not in sel and "encoders" not in sel:
+        raise RunError(f"{bag}: needs nav_msgs/msg/Odometry (--odom-topic) or sensor_msgs/msg/JointState "
+                       f"wheel angles (--encoders-topic) for the motion model; found: {found}")
+    if "encoders" not in sel:
+        sel.pop("fog", None)
+    return sel
+
+
+def params_topics(layer: dict[str, dict[str, Any]]) -> dict[str, str]:
+    """`topics.<input>` values of a parameter file's '/**' section (removed from it: no node
+    declares them), e.g. ``topics: {scan: /front/scan, odom: /wheel/odom}``."""
+    shared = layer.get("/**", {})
+    return {k.split(".", 1)[1]: str(shared.pop(k)) for k in [k for k in shared if k.startswith("topics.")]}
+
+
+def topic_remaps(inputs: dict[str, str]) -> dict[str, str]:
+    """The nodes' relative input names remapped to the bag's topics (as `ros2 launch ... scan_topic:=`)."""
+    return {role: t for role, t in inputs.items() if role in ("scan", "odom", "encoders", "fog") and t != f"/{role}"}
+
+
+def input_report(bag: str, info: dict, inputs: dict[str, str], predictor: dict[str, Any]) -> str:
+    """Which topics the bag has and what the graph uses each for (printed by `pf-slam run`)."""
+    used = {t: role for role, t in inputs.items()}
+    lines = [f"[pf-slam] inputs from {bag}:"]
+    for t, (msgtype, n) in sorted(info["topics"].items()):
+        role = used.get(t)
+        if role is not None:
+            what = "-> " + ROLE_WORDS[role]
+            if role in ("odom", "encoders"):
+                what += f", pairing with scans: {predictor.get('odom_sync')}"
+        elif t in ("/tf", "/tf_static"):
+            what = "-> replayed (transforms)"
+        else:
+            what = "   not used (replayed as recorded)"
+        lines.append(f"  {t:<32} {msgtype:<36} {n:>7}  {what}")
+    return "\n".join(lines)
+
+
+def detect_inputs(bag: str, info: dict, inputs: dict[str, str] | None = None) -> dict[str, dict[str, Any]]:
+    """Parameters implied by the bag: odometry source and pairing, gyro, wheel geometry (from a
+    converted bag's custom data), and the laser's 3D mounting (from /tf_static) when it is tilted.
+    `inputs`: select_inputs()'s choice (default: select_inputs(bag, info))."""
+    topics = info["topics"]
+    inputs = select_inputs(bag, info) if inputs is None else inputs
+    scan_topic = inputs["scan"]
+    source = "odom" if "odom" in inputs else "encoders"
+    topic = inputs[source]
     scan_stamps, odom_stamps, scan_frame = [], set(), None
-    for t, msgtype, _, raw in read_bag(bag, topics=["/scan", topic]):
+    for t, msgtype, _, raw in read_bag(bag, topics=[scan_topic, topic]):
         msg = deserialize(raw, msgtype)
         ns = stamp_ns_of(msg)
-        if t == "/scan":
+        if t == scan_topic:
             scan_stamps.append(ns)
             scan_frame = msg.header.frame_id
         else:
@@ -127,14 +206,15 @@ def detect_inputs(bag: str, info: dict) -> dict[str, dict[str, Any]]:
             predictor.update({"wheels.left_diameter_m": float(custom["pf_slam.left_wheel_diameter_m"]),
                               "wheels.right_diameter_m": float(custom["pf_slam.right_wheel_diameter_m"]),
                               "wheels.base_m": float(custom["pf_slam.wheel_base_m"])})
-        if "/fog" in topics:
-            fog_type = topics["/fog"][0]
+        if "fog" in inputs:
             predictor["fog_format"] = {"pf_slam_interfaces/msg/FogBatch": "batch",
-                                       "geometry_msgs/msg/Vector3Stamped": "vector3"}.get(fog_type)
-            if predictor["fog_format"] is None:
-                raise RunError(f"{bag}: /fog has type {fog_type}; expected pf_slam_interfaces/msg/FogBatch "
-                               "or geometry_msgs/msg/Vector3Stamped")
-    out: dict[str, dict[str, Any]] = {"predictor": predictor}
+                                       "geometry_msgs/msg/Vector3Stamped": "vector3"}[topics[inputs["fog"]][0]]
+    out: dict[str, dict[str, Any]] = {"predictor": predictor, "bag_replay": {"scan_topic": scan_topic}}
+    if "stereo_left" in inputs and "stereo_right" in inputs:
+        left, right = inputs["stereo_left"], inputs["stereo_right"]
+        out["texture"] = {"left_topic": left, "right_topic": right,
+                          "left_info_topic": left.rsplit("/", 1)[0] + "/camera_info",
+                          "right_info_topic": right.rsplit("/", 1)[0] + "/camera_info"}
     mount = _laser_mount(bag, topics, scan_frame)
     if mount is not None:
         out["/**"] = {"laser.extrinsic": mount}
@@ -430,7 +510,7 @@ def make_executor(kind: str, context):
     raise RunError(f"executor must be 'events' or 'single', got {kind!r}")
 
 
-def _make_node(name: str, context, overrides: dict[str, Any]):
+def _make_node(name: str, context, overrides: dict[str, Any], remaps: dict[str, str] | None = None):
     from rclpy.parameter import Parameter
 
     from .nodes.bag_replay import BagReplay
@@ -442,7 +522,14 @@ def _make_node(name: str, context, overrides: dict[str, Any]):
     else:
         cls = {"bag_replay": BagReplay, "predictor": Predictor, "correlator": Correlator, "mapper": Mapper}[name]
     params = [Parameter(k, value=v) for k, v in overrides.items()]
-    return cls(context=context, parameter_overrides=params)
+    return cls(context=context, parameter_overrides=params, cli_args=_remap_args(remaps))
+
+
+def _remap_args(remaps: dict[str, str] | None) -> list[str] | None:
+    """{'scan': '/front/scan'} -> ['--ros-args', '-r', 'scan:=/front/scan'] (None: no remaps)."""
+    if not remaps:
+        return None
+    return ["--ros-args"] + [a for k, v in sorted(remaps.items()) for a in ("-r", f"{k}:={v}")]
 
 
 def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, rate: str = "max",
@@ -451,21 +538,26 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         drain_timeout_s: float = 5.0,
         domain_id: int | None = None, executor: str = "events", texture: bool = True,
         texture_timeout_s: float = 120.0, record: bool = True,
-        record_map_every_s: float | None = None) -> RunResult:
+        record_map_every_s: float | None = None, input_topics: dict[str, str] | None = None) -> RunResult:
     """Replay `bag` through the graph and write the outputs into `out_dir`; returns the summary.
 
     `record`: also write result.mcap (ResultRecorder), with a map every `record_map_every_s`
-    of bag time (default: bag duration / 20)."""
+    of bag time (default: bag duration / 20). `input_topics`: the bag's topic per input
+    ({'scan': '/front/scan', 'odom': ...}; also `topics.*` in the parameter file), see
+    select_inputs()."""
     import rclpy
 
     if processes not in ("single", "multi"):
         raise RunError(f"--processes must be 'single' or 'multi', got {processes!r}")
     info = bag_info(bag)
-    texture = texture and info["topics"].get(TEXTURE_INPUT, (None, 0))[1] > 0  # images, not just the topic
+    file_layer = load_params(params_file) if params_file else {}
+    inputs = select_inputs(bag, info, {**params_topics(file_layer), **(input_topics or {})})
+    texture = (texture and "stereo_right" in inputs
+               and info["topics"].get(inputs.get("stereo_left", ""), (None, 0))[1] > 0)  # images, not just the topic
     node_names = NODE_NAMES + (("texture",) if texture else ())
-    layers = [detect_inputs(bag, info)]
-    if params_file:
-        layers.append(load_params(params_file))
+    layers = [detect_inputs(bag, info, inputs)]
+    if file_layer:
+        layers.append(file_layer)
     layers.append({"bag_replay": {"bag": str(bag), "rate": str(rate)},
                    "correlator": {"expected_observers": 1},  # the recorder below
                    "predictor": {"expected_observers": 1},
@@ -477,7 +569,10 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     per_node = {n: node_params(layers, n) for n in node_names}
     out = Path(out_dir)
     (out / "snapshots").mkdir(parents=True, exist_ok=True)
-    scans_total = info["topics"]["/scan"][1]
+    scans_total = info["topics"][inputs["scan"]][1]
+    remaps = topic_remaps(inputs)
+    if progress:
+        print(input_report(str(bag), info, inputs, per_node["predictor"]), file=sys.stderr)
     bag_duration_s = info["duration_ns"] / 1e9
     if domain_id is None:
         domain_id = int(os.environ.get("ROS_DOMAIN_ID", "0"))
@@ -496,19 +591,19 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         ex.add_node(rec_node)
         rec = _Recorder(rec_node, out, scans_total, bag_duration_s, snapshot_every, progress, texture)
         if record:
-            result = ResultRecorder(rec_node, out / "result.mcap", per_node["bag_replay"].get("scan_topic", "/scan"),
+            result = ResultRecorder(rec_node, out / "result.mcap", inputs["scan"],
                                     record_map_every_s if record_map_every_s is not None else bag_duration_s / 20,
                                     texture)
         texture_node = None
         if processes == "single":
             for name in node_names:
-                node = _make_node(name, ctx, per_node[name])
+                node = _make_node(name, ctx, per_node[name], remaps)
                 nodes.append(node)
                 ex.add_node(node)
                 if name == "texture":
                     texture_node = node
         else:
-            children = _spawn(per_node, domain_id, out)
+            children = _spawn(per_node, domain_id, out, remaps)
         state = {"last_progress": time.monotonic(), "last_count": -1}
         slam_done: dict[str, float] = {}  # "t": when the SLAM finished (before the texture's tail)
 
@@ -608,6 +703,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         "snapshots_skipped": rec.snapshots_skipped,
         "complete": True,
     }
+    summary["inputs"] = inputs
     if result is not None:
         summary["result_mcap"] = {"file": result.path.name, "messages": dict(result.counts)}
     if texture_summary is not None:
@@ -651,7 +747,8 @@ def _default_particles() -> int:
     return FilterConfig().num_particles
 
 
-def _spawn(per_node: dict[str, dict[str, Any]], domain_id: int, out: Path) -> list[subprocess.Popen]:
+def _spawn(per_node: dict[str, dict[str, Any]], domain_id: int, out: Path,
+           remaps: dict[str, str] | None = None) -> list[subprocess.Popen]:
     """Start one process per node, each with its own parameter file."""
     logs = out / "logs"
     logs.mkdir(parents=True, exist_ok=True)
@@ -663,7 +760,8 @@ def _spawn(per_node: dict[str, dict[str, Any]], domain_id: int, out: Path) -> li
         pfile.write_text(yaml.safe_dump({name: {"ros__parameters": unflatten(per_node[name])}}))
         log = open(logs / f"{name}.log", "w")
         procs.append(subprocess.Popen(
-            [sys.executable, "-m", f"pf_slam_nodes.nodes.{name}", "--ros-args", "--params-file", str(pfile)],
+            [sys.executable, "-m", f"pf_slam_nodes.nodes.{name}", "--ros-args", "--params-file", str(pfile)]
+            + (_remap_args(remaps) or [])[1:],
             env=env, stdout=log, stderr=subprocess.STDOUT))
     return procs
 
@@ -672,7 +770,8 @@ def run_cli(args: Any, log: Callable[[str], None] = print) -> int:
     res = run(args.bag, args.out, params_file=args.params, rate=args.rate, processes=args.processes,
               overrides=_cli_overrides(args), snapshot_every=args.snapshot_every, executor=args.executor,
               texture=not getattr(args, "no_texture", False), record=not getattr(args, "no_record", False),
-              record_map_every_s=getattr(args, "record_map_every", None))
+              record_map_every_s=getattr(args, "record_map_every", None),
+              input_topics={role: getattr(args, f"{role}_topic", None) for role in INPUT_TYPES})
     s = res.summary
     log(f"{s['scans_processed']} scans ({s['scans_corrected']} corrected), {s['scans_dropped']} dropped, "
         f"wall {s['wall_time_s']:.1f} s, RTF {s['real_time_factor']}x; outputs in {args.out}")
