@@ -17,6 +17,7 @@ from pf_slam_nodes.graph import NODE_NAMES, _make_node, detect_inputs, load_para
 from pf_slam_nodes.io.bag import bag_info  # noqa: E402
 from pf_slam_nodes.io.mapfile import trinary  # noqa: E402
 from pf_slam_nodes.io.trajectory import quat_to_yaw  # noqa: E402
+from pf_slam_nodes.nodes.common import announce_when_matched  # noqa: E402
 from pf_slam_nodes.ros import convert, qos  # noqa: E402
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
@@ -38,9 +39,8 @@ def test_rep105_transforms_and_late_map_subscriber(ros_domain):
 
     info = bag_info(str(SAMPLE))
     layers = [detect_inputs(str(SAMPLE), info), load_params(PARAMS),
-              {"/**": dict(FRAMES), "bag_replay": {"bag": str(SAMPLE)},
-               "predictor": {"expected_observers": 1},
-               "mapper": {"expected_observers": 1, "publish_sensor_tf": True}}]
+              {"/**": dict(FRAMES), "mapper": {"publish_sensor_tf": True},
+               "bag_replay": {"bag": str(SAMPLE), "wait_for": ["predictor", "correlator", "mapper", "observer"]}}]
     assert layers[0]["mapper"] == {"publish_sensor_tf": False}  # the bag's /tf_static has the laser
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=ros_domain)
@@ -48,12 +48,12 @@ def test_rep105_transforms_and_late_map_subscriber(ros_domain):
     try:
         ex = SingleThreadedExecutor(context=ctx)
         obs = rclpy.create_node("observer", context=ctx)
-        poses, tf, tf_static = {}, [], []
-        obs.create_subscription(PoseStamped, "pose",
-                                lambda m: poses.__setitem__(convert.stamp_to_ns(m.header.stamp), m), qos.pipeline())
-        obs.create_subscription(TFMessage, "/tf", lambda m: tf.extend(m.transforms), qos.outputs(10000))
-        paths = []
-        obs.create_subscription(Path, "path", paths.append, qos.outputs())
+        poses, tf, tf_static, paths = {}, [], [], []
+        needs = [(obs.create_subscription(PoseStamped, "pose", lambda m: poses.__setitem__(
+                      convert.stamp_to_ns(m.header.stamp), m), qos.pipeline()), 1),
+                 (obs.create_subscription(TFMessage, "/tf", lambda m: tf.extend(m.transforms), qos.outputs(10000)), 2),
+                 (obs.create_subscription(Path, "path", paths.append, qos.outputs()), 1)]
+        announce_when_matched(obs, needs)  # the replay waits for "observer" too
         obs.create_subscription(TFMessage, "/tf_static", lambda m: tf_static.extend(m.transforms), qos.latched(5))
         ex.add_node(obs)
         nodes = {n: _make_node(n, ctx, node_params(layers, n)) for n in NODE_NAMES}

@@ -401,6 +401,7 @@ class ResultRecorder:
         from rclpy.qos import QoSProfile
 
         from .io.bag import open_writer
+        from .nodes.common import announce_when_matched
         from .ros import qos, topics
         self.path = path
         self._bag_dir = path.with_suffix(".bag_tmp")
@@ -422,25 +423,12 @@ class ResultRecorder:
         if texture:
             from .nodes.texture import TEXTURE
             streams.append(("/" + TEXTURE, "sensor_msgs/msg/Image", qos.latched(), 0))
-        self._subs = []
+        needs = []
         for topic, msgtype, profile, wait in streams:
             self.bag.add_connection(topic, msgtype, latched=profile.durability == qos.latched().durability)
             cb = self._on_map if topic == "/" + topics.MAP else self._writer_for(topic, msgtype)
-            sub = node.create_subscription(_message_class(msgtype), topic, cb, profile, raw=True)
-            self._subs.append((sub, wait))
-        self._announce(node)
-
-    def _announce(self, node) -> None:
-        from std_msgs.msg import String
-
-        from .ros import qos, topics
-        pub = node.create_publisher(String, topics.READY, qos.latched(depth=1))
-
-        def check() -> None:
-            if all(sub.get_publisher_count() >= n for sub, n in self._subs):
-                pub.publish(String(data=self.NAME))
-                timer.cancel()
-        timer = node.create_timer(0.05, check)
+            needs.append((node.create_subscription(_message_class(msgtype), topic, cb, profile, raw=True), wait))
+        announce_when_matched(node, needs, name=self.NAME)
 
     def _writer_for(self, topic: str, msgtype: str):
         from .ros import convert

@@ -135,26 +135,36 @@ def param(node: Node, name: str, default: T) -> T:
     return v
 
 
-def announce_when_matched(node: Node, needs: list[tuple[Any, int]], period_s: float = 0.05) -> None:
-    """Publish the node's name on pf_slam/ready (latched) once each publisher in `needs` has at
-    least its number of matched subscriptions.
+def announce_when_matched(node: Node, needs: list[tuple[Any, int]], period_s: float = 0.05,
+                          name: str | None = None) -> None:
+    """Publish `name` (default: the node's name) on pf_slam/ready (latched) once each publisher in
+    `needs` has at least its number of matched subscriptions (each subscription: of matched
+    publishers, for an observer such as the result recorder).
 
     Reliable, volatile topics lose what is published before a subscriber matches, so the replay
     starts only when every stage has announced (DDS matching is per writer/reader pair: only the
-    publishing node can see it).
+    two ends can see it).
     """
+    from rclpy.publisher import Publisher
     from std_msgs.msg import String
 
     from ..ros import qos, topics
     pub = node.create_publisher(String, topics.READY, qos.latched(depth=1))
     timer = None
 
+    def matched(e: Any) -> int:
+        return e.get_subscription_count() if isinstance(e, Publisher) else e.get_publisher_count()
+
+    def peers(e: Any) -> list[str]:
+        infos = (node.get_subscriptions_info_by_topic if isinstance(e, Publisher)
+                 else node.get_publishers_info_by_topic)(e.topic_name)
+        return [i.node_name for i in infos]
+
     def check() -> None:
-        if all(p.get_subscription_count() >= n for p, n in needs):
-            node.get_logger().info("ready: " + ", ".join(
-                f"{p.topic_name} matched {p.get_subscription_count()} "
-                f"{[i.node_name for i in node.get_subscriptions_info_by_topic(p.topic_name)]}" for p, _ in needs))
-            pub.publish(String(data=node.get_name()))
+        if all(matched(p) >= n for p, n in needs):
+            node.get_logger().info(f"ready ({name or node.get_name()}): " + ", ".join(
+                f"{p.topic_name} matched {matched(p)} {peers(p)}" for p, _ in needs))
+            pub.publish(String(data=name or node.get_name()))
             timer.cancel()
     timer = node.create_timer(period_s, check)
 

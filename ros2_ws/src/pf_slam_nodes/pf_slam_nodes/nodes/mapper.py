@@ -56,9 +56,7 @@ class Mapper(Node):
         self.pub_tf = self.create_publisher(TFMessage, topics.TF, qos.outputs())
         self.pub_tf_static = (self.create_publisher(TFMessage, topics.TF_STATIC, qos.latched())
                               if param(self, "publish_sensor_tf", True) else None)
-        observers = param(self, "expected_observers", 0)  # a recorder of /tf and /path
-        announce_when_matched(self, [(self.pub_grid, 1)]  # the correlator
-                              + ([(self.pub_tf, observers), (self.pub_path, observers)] if observers else []))
+        announce_when_matched(self, [(self.pub_grid, 1)])  # the correlator
         self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline(), raw=True)
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())

@@ -66,10 +66,9 @@ class Predictor(Node):
         self.pub_pose = self.create_publisher(PoseStamped, topics.POSE, qos.pipeline())
         self.pose_cdr = cdr.PoseStampedWriter(self.map_frame)  # one pose per scan: published as bytes
         self._init_odom_tf()
-        # the correlator; bag_replay (paces on pose) + observers that must see every pose (and /tf)
-        observers = param(self, "expected_observers", 0)
-        announce_when_matched(self, [(self.pub, 1), (self.pub_pose, 1 + observers)]
-                              + ([(self.pub_tf, observers)] if observers and self.pub_tf else []))
+        # the correlator; bag_replay (paces on pose) + observers that must see every pose
+        announce_when_matched(self, [(self.pub, 1),
+                                     (self.pub_pose, 1 + param(self, "expected_observers", 0))])
         self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline(), raw=True)
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
