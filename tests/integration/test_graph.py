@@ -72,6 +72,12 @@ def test_sample_bag_pose_error_and_map(sample_run):
     # outputs a user expects
     assert (out / "map.pgm").is_file() and (out / "summary.json").is_file()
     assert list((out / "snapshots").glob("*.png"))
+    # per-stage split of a scan: every stage ran, and the parts add up to the wall time
+    split = s["stage_ms_per_scan"]
+    assert set(split) == {"predict", "correlate", "resample", "map", "field", "messaging"}
+    assert all(split[k] > 0 for k in ("predict", "correlate", "map", "field"))
+    assert split["messaging"] > 0
+    assert abs(sum(split.values()) * 600 / 1e3 - s["wall_time_s"]) < 0.01 * s["wall_time_s"] + 0.01
 
 
 def test_same_seed_same_trajectory_and_multiprocess_equal(sample_run, tmp_path, module_ros_domain):

@@ -416,6 +416,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         if texture_node is not None and texture_node.wait_idle(30.0):
             texture_out = texture_node.render()  # in the final /map geometry
         scans_published = (rec.replay_counts or {}).get("/scan", scans_total)
+        stage_split = _stage_split(nodes, wall, len(rec.poses)) if processes == "single" else None
     finally:
         for c in children:
             if c.poll() is None:
@@ -462,10 +463,23 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         "snapshots_skipped": rec.snapshots_skipped,
         "complete": True,
     }
+    if stage_split is not None:
+        summary["stage_ms_per_scan"] = stage_split
     if texture_summary is not None:
         summary["texture"] = texture_summary
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return RunResult(summary, rec.stamps, rec.poses)
+
+
+def _stage_split(nodes, wall_s: float, scans: int) -> dict[str, float]:
+    """Wall ms per processed scan in each core stage of the single-process graph (the stages'
+    own clocks) and the rest ("messaging": (de)serialisation, odometry parsing, executor and
+    recorder). The texture node works on its own thread, in parallel: not part of this split
+    (its ms per frame is in the texture summary)."""
+    from .core.stages import stage_seconds
+    seconds = stage_seconds(*[n.stage for n in nodes if hasattr(n, "stage")])[0]
+    seconds["messaging"] = wall_s - sum(seconds.values())
+    return {k: round(1e3 * v / max(scans, 1), 3) for k, v in seconds.items()}
 
 
 def _write_texture(out: Path, rec: _Recorder, rendered, occ: np.ndarray, res: float,
