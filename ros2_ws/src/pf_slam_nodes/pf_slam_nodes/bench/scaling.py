@@ -18,8 +18,8 @@ import numpy as np
 import yaml
 
 from ..core.metrics import evaluate
-from ..core.stages import STAGE_STEPS
 from ..io.convert import convert_carmen
+from . import STAGE_COLUMNS, stage_cells
 from .carmen import DATASETS
 
 CARMEN_YAML = Path(__file__).resolve().parents[2] / "config" / "carmen_indoor.yaml"
@@ -82,16 +82,13 @@ def bench(data_dir: Path, out_dir: Path, particles=PARTICLES, grid_cells=GRID_CE
 
 
 def format_table(rows: list[dict]) -> str:
-    stages = STAGE_STEPS + ("messaging",)
     head = ("| sweep | log | particles | grid | wall s | RTF | peak RSS MB | relations (m) | "
-            + " | ".join(f"{k} ms" for k in stages) + " |")
-    lines = [head, "|" + "---|" * 8 + "---:|" * len(stages)]
+            + " | ".join(f"{k} ms" for k in STAGE_COLUMNS) + " |")
+    lines = [head, "|" + "---|" * 8 + "---:|" * len(STAGE_COLUMNS)]
     for r in rows:
-        st = r["stage_ms_per_scan"]
         lines.append(f"| {r['sweep']} | {r['dataset']} | {r['particles']} | {r['grid_cells']}² | "
                      f"{r['wall_s']:.1f} | {r['rtf']:.1f}× | {r['peak_rss_mb']:.0f} | "
-                     f"{r['rel_trans_mean']:.3f} | " + " | ".join(f"{st.get(k, math.nan):.2f}" for k in stages)
-                     + " |")
+                     f"{r['rel_trans_mean']:.3f} | {stage_cells(r)} |")
     return "\n".join(lines)
 
 
