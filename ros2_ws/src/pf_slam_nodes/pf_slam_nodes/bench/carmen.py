@@ -76,6 +76,6 @@ def main(data_dir: str, out_dir: str, names=None, seeds=(0,), processes="single"
     table = format_table(rows)
     if processes == "single":
         table += "\n\nTime per scan by stage (ms):\n\n" + stage_table(rows, ("dataset", "seed", "particles"))
-    (out / "carmen.md").write_text(table + "\n")
-    (out / "carmen.json").write_text(json.dumps(rows, indent=2) + "\n")
+    (out / f"carmen_{processes}.md").write_text(table + "\n")
+    (out / f"carmen_{processes}.json").write_text(json.dumps(rows, indent=2) + "\n")
     return table
