@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
@@ -51,10 +51,27 @@ def test_update_any_prior_scores_temperature(args):
     assert 1.0 <= n_eff(out) <= lw.size
 
 
+class _Draws:
+    """An rng whose uniform draws hypothesis picks (0 and the largest float below 1 included)."""
+
+    def __init__(self, u: list[float]) -> None:
+        self.u = np.array(u)
+
+    def random(self, size=None):
+        return self.u[0] if size is None else np.resize(self.u, size)
+
+
+rngs = st.one_of(st.integers(0, 2**32 - 1).map(np.random.default_rng),
+                 st.lists(st.sampled_from([0.0, 0.5, float(np.nextafter(1.0, 0.0))])
+                          | st.floats(0.0, 1.0, exclude_max=True), min_size=1).map(_Draws))
+
+
 @PROPS
-@given(scores, st.integers(0, 2**32 - 1), st.sampled_from([stratified_resample, systematic_resample]))
-def test_resample_indices_in_range(lw, seed, method):
-    idx = method(lw, np.random.default_rng(seed))
+@given(scores, rngs, st.sampled_from([stratified_resample, systematic_resample]))
+# found by this test: u = (1 + r) / 2 rounded to 1.0 drew the zero-weight last particle
+@example(np.array([746.0, 0.0]), _Draws([float(np.nextafter(1.0, 0.0))]), stratified_resample)
+def test_resample_indices_in_range(lw, rng, method):
+    idx = method(lw, rng)
     assert idx.shape == (lw.size,) and idx.dtype == np.int64
     assert idx.min() >= 0 and idx.max() < lw.size
     # only particles with weight can be drawn (all may be drawn when none has any)
