@@ -297,7 +297,7 @@ def check_run_inputs(info: dict) -> None:
     """
     topics = info['topics']
     problems = [f'{t} is {m}, expected {" or ".join(RUN_TOPICS[t])}'
-                for t, (m, _) in sorted(topics.items()) if t in RUN_TOPICS and m not in RUN_TOPICS[t]]
+                for t, (m, _) in sorted(topics.items()) if m not in RUN_TOPICS.get(t, (m,))]
     if '/scan' not in topics:
         problems.append('no /scan topic')
     elif topics['/scan'][1] == 0:

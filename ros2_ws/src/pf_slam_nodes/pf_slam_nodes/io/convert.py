@@ -54,8 +54,8 @@ class ConvertReport:
 
     ``counts``: messages per topic; ``skipped``: input lines skipped per reason; ``warnings``:
     human-readable lines from the reader and the converter; ``retimed``: log lines whose
-    messages' record time was moved forward (header stamps kept); ``start_ns`` / ``end_ns``: first / last record
-    time; ``out_bag``, ``storage``, ``source``.
+    messages' record time was moved forward (header stamps kept); ``start_ns`` / ``end_ns``:
+    first / last record time; ``out_bag``, ``storage``, ``source``.
     """
 
     source: str
