@@ -22,7 +22,7 @@ from typing import Any, Callable
 import numpy as np
 import yaml
 
-from .io.bag import bag_info, deserialize, read_bag, stamp_ns_of
+from .io.bag import bag_info, check_run_inputs, deserialize, read_bag, stamp_ns_of
 from .io.mapfile import render_snapshot, write_map
 from .io.trajectory import write_tum
 from .ros import cdr
@@ -92,17 +92,9 @@ def node_params(layers: list[dict[str, dict[str, Any]]], node: str) -> dict[str,
 def detect_inputs(bag: str, info: dict) -> dict[str, dict[str, Any]]:
     """Parameters implied by the bag: odometry source and pairing, gyro, wheel geometry (from a
     converted bag's custom data), and the laser's 3D mounting (from /tf_static) when it is tilted."""
+    check_run_inputs(info)  # BagError: what is missing or of the wrong type, what was found
     topics = info["topics"]
-    if "/scan" not in topics:
-        found = ", ".join(f"{t} [{m}]" for t, (m, _) in sorted(topics.items())) or "none"
-        raise RunError(f"{bag}: no /scan (sensor_msgs/msg/LaserScan) topic; found: {found}")
-    if "/odom" in topics:
-        source, topic = "odom", "/odom"
-    elif "/encoders" in topics:
-        source, topic = "encoders", "/encoders"
-    else:
-        raise RunError(f"{bag}: needs /odom (nav_msgs/msg/Odometry) or /encoders "
-                       f"(sensor_msgs/msg/JointState) for the motion model; found: {', '.join(topics)}")
+    source, topic = ("odom", "/odom") if "/odom" in topics else ("encoders", "/encoders")
     scan_stamps, odom_stamps, scan_frame = [], set(), None
     for t, msgtype, _, raw in read_bag(bag, topics=["/scan", topic]):
         msg = deserialize(raw, msgtype)
@@ -127,12 +119,8 @@ def detect_inputs(bag: str, info: dict) -> dict[str, dict[str, Any]]:
                               "wheels.right_diameter_m": float(custom["pf_slam.right_wheel_diameter_m"]),
                               "wheels.base_m": float(custom["pf_slam.wheel_base_m"])})
         if "/fog" in topics:
-            fog_type = topics["/fog"][0]
             predictor["fog_format"] = {"pf_slam_interfaces/msg/FogBatch": "batch",
-                                       "geometry_msgs/msg/Vector3Stamped": "vector3"}.get(fog_type)
-            if predictor["fog_format"] is None:
-                raise RunError(f"{bag}: /fog has type {fog_type}; expected pf_slam_interfaces/msg/FogBatch "
-                               "or geometry_msgs/msg/Vector3Stamped")
+                                       "geometry_msgs/msg/Vector3Stamped": "vector3"}[topics["/fog"][0]]
     out: dict[str, dict[str, Any]] = {"predictor": predictor}
     mount = _laser_mount(bag, topics, scan_frame)
     if mount is not None:
