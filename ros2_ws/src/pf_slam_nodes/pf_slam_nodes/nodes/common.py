@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import dataclasses
+import os
+import signal
 import sys
 from collections import deque
 from typing import Any, Callable, TypeVar
@@ -117,8 +119,21 @@ class ScanQueue:
         return deserialize_message(self._raw.popleft(), LaserScan)
 
 
+def die_with_parent() -> None:
+    """Started by `pf-slam run --processes multi` (PF_SLAM_PARENT_PID set): get SIGTERM when that
+    process ends, however it ends (Linux prctl PR_SET_PDEATHSIG), so no node outlives its run."""
+    parent = os.environ.get("PF_SLAM_PARENT_PID")
+    if not parent or not sys.platform.startswith("linux"):
+        return
+    import ctypes
+    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # 1 = PR_SET_PDEATHSIG
+    if os.getppid() != int(parent):  # the parent ended before prctl took effect
+        sys.exit(1)
+
+
 def run_node(factory: Callable[..., Node], args: list[str] | None = None) -> int:
-    """`main()` of a node console script: init, spin until Ctrl-C / shutdown, clean up."""
+    """`main()` of a node console script: init, spin until Ctrl-C / SIGTERM / shutdown, clean up."""
+    die_with_parent()
     rclpy.init(args=args)
     node = None
     try:
