@@ -25,7 +25,7 @@ pytest.importorskip("rclpy")
 
 from pf_slam_nodes.core import metrics  # noqa: E402
 from pf_slam_nodes.graph import run  # noqa: E402
-from pf_slam_nodes.io.bag import bag_info, deserialize, make_time, open_writer, read_bag, stamp_ns_of  # noqa: E402
+from pf_slam_nodes.io.bag import TYPESTORE, bag_info, deserialize, make_time, open_writer, read_bag, stamp_ns_of  # noqa: E402
 from pf_slam_nodes.io.kaist import register_fog_batch  # noqa: E402
 from pf_slam_nodes.io.trajectory import read_trajectory  # noqa: E402
 
@@ -39,7 +39,8 @@ GAP_NS = 120 * 10**9
 def _edit_bag(src: Path, dst: Path, scans: int, edit) -> None:
     """Copy the first `scans` scans of `src` (and what was recorded before them) to `dst`,
     passing each scan / odometry message through `edit(topic, scan_index, msg)` (the index of
-    the last scan before it); the other topics are copied as they are."""
+    the last scan before it; bytes returned are written instead of the message); the other
+    topics are copied as they are."""
     register_fog_batch()
     info = bag_info(src)
     k = -1
@@ -57,8 +58,11 @@ def _edit_bag(src: Path, dst: Path, scans: int, edit) -> None:
                 w.write_raw(topic, t, raw)
                 continue
             msg = deserialize(raw, msgtype)
-            edit(topic, k, msg)
-            w.write(topic, t, msg)
+            replaced = edit(topic, k, msg)
+            if replaced is None:
+                w.write(topic, t, msg)
+            else:
+                w.write_raw(topic, t, replaced)
 
 
 def _shift(msg, dt_ns: int) -> None:
@@ -67,8 +71,8 @@ def _shift(msg, dt_ns: int) -> None:
 
 def test_bad_messages_are_counted_and_the_filter_goes_on(tmp_path, ros_domain):
     """NaN / negative / -inf ranges, a beam count that disagrees with the angles, a scan (and its
-    odometry) stamped 0.5 s back, a 2-minute gap, a NaN odometry message: each counted exactly,
-    and the trajectory stays on the ground truth."""
+    odometry) stamped 0.5 s back, a 2-minute gap, a NaN odometry message, a truncated scan: each
+    counted exactly, and the trajectory stays on the ground truth."""
     t0 = bag_info(SAMPLE)["start_ns"]
     t_back, t_nan, t_gap = t0 + 6 * 10**9, t0 + 8 * 10**9, t0 + 10 * 10**9  # scans 60, 80, 100
 
@@ -80,6 +84,8 @@ def test_bad_messages_are_counted_and_the_filter_goes_on(tmp_path, ros_domain):
             msg.ranges[5], msg.ranges[6] = -1.0, -np.inf
         if topic == "/scan" and k == 40:
             msg.ranges = msg.ranges[:90]
+        if topic == "/scan" and k == 230:  # cut inside the ranges (after the 200 scans run reads first)
+            return TYPESTORE.serialize_cdr(msg, "sensor_msgs/msg/LaserScan")[:200]
         if topic == "/odom" and stamp == t_nan:
             msg.pose.pose.position.x = math.nan
         if stamp == t_back:
@@ -87,20 +93,22 @@ def test_bad_messages_are_counted_and_the_filter_goes_on(tmp_path, ros_domain):
         if stamp >= t_gap:
             _shift(msg, GAP_NS)
 
-    _edit_bag(SAMPLE, tmp_path / "bag", 200, edit)
+    _edit_bag(SAMPLE, tmp_path / "bag", 240, edit)
     res = run(str(tmp_path / "bag"), tmp_path / "out", progress=False, domain_id=ros_domain, snapshot_every=0)
     s = res.summary
-    assert s["complete"] and s["scans_published"] == s["scans_processed"] == 200 and s["scans_dropped"] == 0
-    assert s["faults"] == {"scan_bad_ranges": 3, "scan_count_mismatch": 1, "scan_unreadable": 0,
+    assert s["complete"] and s["scans_published"] == s["scans_processed"] == 240 and s["scans_dropped"] == 0
+    assert s["faults"] == {"scan_bad_ranges": 3, "scan_count_mismatch": 1, "scan_unreadable": 1,
                            "time_backwards": 1, "time_gap": 1, "odometry_nonfinite": 1,
-                           "odom_time_backwards": 1, "odom_missing": 1}, s["faults"]
+                           "odom_time_backwards": 1,
+                           "odom_missing": 2}, s["faults"]  # the NaN odometry's scan, the unreadable scan
     t_est, p_est = read_trajectory(tmp_path / "out" / "trajectory.tum")
     _, p_gt = read_trajectory(SAMPLE.parent / "ground_truth.tum")  # one pose per scan, same frame
-    assert len(t_est) == 200 and np.isfinite(p_est).all()
+    assert len(t_est) == 240 and np.isfinite(p_est).all()
+    assert t_est[230] == t_est[229]  # the unreadable scan: posed at the previous scan's stamp
     assert t_est[100] - t_est[99] > 119  # the gap is kept in the stamps
-    th, tr = metrics.align_se2(p_est[:, :2], p_gt[:200, :2])
+    th, tr = metrics.align_se2(p_est[:, :2], p_gt[:240, :2])
     c, s_ = np.cos(th), np.sin(th)
-    err = np.linalg.norm(p_est[:, :2] @ np.array([[c, s_], [-s_, c]]) + tr - p_gt[:200, :2], axis=1)
+    err = np.linalg.norm(p_est[:, :2] @ np.array([[c, s_], [-s_, c]]) + tr - p_gt[:240, :2], axis=1)
     # measured 0.021 m rmse (the NaN odometry alone would have made every later pose NaN)
     assert err.max() < 0.15 and np.sqrt(np.mean(err ** 2)) < 0.05, (err.max(), np.argmax(err))
 
@@ -194,6 +202,17 @@ def _assert_partial(out: Path, proc: subprocess.Popen, log: Path, code: int, why
     assert (out / "map.pgm").stat().st_size > 1000 and (out / "snapshots" / "final.png").is_file()
     assert f"run incomplete: stopped by {why}" in log.read_text()
     return s
+
+
+def test_no_progress_stops_with_what_there_is(tmp_path, ros_domain):
+    """A graph that never gets going (the replay waits for a node that does not exist) stops
+    after idle_timeout_s with a summary that says why, and an empty trajectory; no map."""
+    res = run(str(SAMPLE), tmp_path / "out", progress=False, domain_id=ros_domain, idle_timeout_s=2.0,
+              overrides={"bag_replay": {"wait_for": ["predictor", "correlator", "mapper", "nobody"]}})
+    s = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert s == res.summary and s["complete"] is False and s["map"] is None
+    assert s["stopped_by"] == "no progress for 2 s: 0/600 scans processed"
+    assert s["scans_processed"] == 0 and read_trajectory(tmp_path / "out" / "trajectory.tum")[0].size == 0
 
 
 def test_sigint_writes_partial_outputs_and_exits_130(tmp_path, ros_domain):
