@@ -97,10 +97,10 @@ def test_bad_messages_are_counted_and_the_filter_goes_on(tmp_path, ros_domain):
     res = run(str(tmp_path / "bag"), tmp_path / "out", progress=False, domain_id=ros_domain, snapshot_every=0)
     s = res.summary
     assert s["complete"] and s["scans_published"] == s["scans_processed"] == 240 and s["scans_dropped"] == 0
-    assert s["faults"] == {"scan_bad_ranges": 3, "scan_count_mismatch": 1, "scan_unreadable": 1,
-                           "time_backwards": 1, "time_gap": 1, "odometry_nonfinite": 1,
-                           "odom_time_backwards": 1,
-                           "odom_missing": 2}, s["faults"]  # the NaN odometry's scan, the unreadable scan
+    assert {k: n for k, n in s["faults"].items() if n} == {
+        "scan_bad_ranges": 3, "scan_count_mismatch": 1, "scan_unreadable": 1, "time_backwards": 1,
+        "time_gap": 1, "odometry_nonfinite": 1, "odom_time_backwards": 1,
+        "odom_missing": 2}, s["faults"]  # the NaN odometry's scan, the unreadable scan
     t_est, p_est = read_trajectory(tmp_path / "out" / "trajectory.tum")
     _, p_gt = read_trajectory(SAMPLE.parent / "ground_truth.tum")  # one pose per scan, same frame
     assert len(t_est) == 240 and np.isfinite(p_est).all()
@@ -248,7 +248,8 @@ def test_killed_node_is_named_outputs_kept_no_orphans(tmp_path, ros_domain):
 # ------------------------------------------------------------------ lossy replay is never silent
 def test_replay_faster_than_the_graph_counts_and_prints_drops(tmp_path, ros_domain):
     """The car bag (2000 scans in 20 s) replayed at 1000x into one process per node: the
-    queues overflow; every scan published and not processed is reported as dropped."""
+    queues overflow; every scan published and not processed is reported as dropped, and the
+    scans that did arrive still give the right trajectory."""
     out = tmp_path / "out"
     r = subprocess.run([sys.executable, "-m", "pf_slam_nodes.cli", "run", str(CAR), "--out", str(out),
                         "--params", str(KAIST), "--rate", "1000", "--processes", "multi", "--no-texture",
@@ -261,3 +262,8 @@ def test_replay_faster_than_the_graph_counts_and_prints_drops(tmp_path, ros_doma
     assert s["scans_dropped"] == s["scans_published"] - s["scans_processed"] > 0
     assert f"{s['scans_dropped']} dropped" in r.stdout
     assert f"warning: {s['scans_dropped']} of 2000 scans published were dropped" in r.stdout
+    # the nodes lose different scans; each set is matched to its own scan by stamp, or to none
+    # (counted): measured ATE 0.031 m with 897 dropped (2.6 m when sets took the n-th scan to arrive)
+    assert "scans_lost_correlator" in s["faults"] and "scans_lost_mapper" in s["faults"]
+    ev = metrics.evaluate(out / "trajectory.tum", ROOT / "bags" / "car_sample_ground_truth.csv")
+    assert ev["ate"]["rmse"] < 0.2, ev["ate"]

@@ -8,8 +8,10 @@ outputs.
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import os
+import re
 import resource
 import signal
 import subprocess
@@ -423,7 +425,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
             elif finished():
                 slam_done.setdefault("t", time.monotonic())
                 # the texture node finishes on its own after the last pair (it may skip pairs
-                # under load, never holds the SLAM back); wait for its final texture
+                # under load, never holds the SLAM nodes back); wait for its final texture
                 if (not texture or (rec.texture_status or {}).get("final")
                         or time.monotonic() - slam_done["t"] > texture_timeout_s):
                     outcome.set_result(None)
@@ -539,8 +541,6 @@ def remove_stale_shm(shm: Path = Path("/dev/shm"), min_age_s: float = 2.0) -> li
     flock on its segment's ``fastrtps_<id>_el`` file, so a lockable one (older than `min_age_s`:
     not one being created right now) is stale. The ``fastrtps_port*`` segments are shared by all
     participants and persist by design: left alone. Returns the names removed."""
-    import fcntl
-    import re
     removed = []
     for lock in shm.glob("fastrtps_*_el"):
         if not re.fullmatch(r"fastrtps_[0-9a-f]{16}_el", lock.name):

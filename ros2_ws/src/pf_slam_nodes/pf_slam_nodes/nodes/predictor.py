@@ -28,7 +28,6 @@ second, and once more, "final", when the last scan of the bag is posed) for summ
 """
 from __future__ import annotations
 
-import json
 from collections import deque
 
 import numpy as np
@@ -37,7 +36,6 @@ from nav_msgs.msg import Odometry
 from pf_slam_interfaces.msg import FogBatch, ParticleArray, ReplayStatus
 from rclpy.node import Node
 from sensor_msgs.msg import JointState, LaserScan
-from std_msgs.msg import String
 
 from ..core.faults import ODOMETRY_NONFINITE, ScanChecks
 from ..core.motion import compose
@@ -45,7 +43,7 @@ from ..core.odometry import GyroBuffer, OdometryBuffer, WheelOdometryIntegrator
 from ..core.stages import PredictionStage
 from ..io.trajectory import quat_to_yaw
 from ..ros import cdr, convert, qos, topics
-from .common import announce_when_matched, declare_config, param, run_node
+from .common import announce_when_matched, declare_config, param, run_node, status_publisher
 
 
 class Predictor(Node):
@@ -62,7 +60,6 @@ class Predictor(Node):
         self.odometry_nonfinite = 0
         self.poses_published = 0
         self._fault_loggers: dict = {}  # one logger per fault kind: each throttled on its own
-        self._status_sent: dict | None = None
         self.scan_count = 0
         self.waiting_for: int | None = None  # scan index of the update in flight
         self.odom_received = 0
@@ -81,8 +78,6 @@ class Predictor(Node):
         # the correlator; bag_replay (paces on pose) + observers that must see every pose
         announce_when_matched(self, [(self.pub, 1),
                                      (self.pub_pose, 1 + param(self, "expected_observers", 0))])
-        self.pub_status = self.create_publisher(String, topics.STATUS, qos.latched())
-        self.create_timer(1.0, self._publish_status)
         self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline(), raw=True)
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
@@ -111,6 +106,10 @@ class Predictor(Node):
             self.create_subscription(FogBatch, topics.FOG, self._on_fog_batch, qos.pipeline(10000), raw=True)
         elif fog == "vector3":
             self.create_subscription(Vector3Stamped, topics.FOG, self._on_fog_vector, qos.pipeline(100000))
+        # "final" once the last scan of the bag is posed: the run's summary waits for it
+        self._publish_status = status_publisher(self, lambda: {
+            "final": self.poses_published == self.scans_expected, "scans": self.scan_count,
+            "faults": self.faults()})
 
     # ------------------------------------------------------------------ inputs
     def _on_odom(self, msg: Odometry) -> None:
@@ -214,13 +213,6 @@ class Predictor(Node):
             out["fog_out_of_order"] = self.gyro.out_of_order
         return out
 
-    def _publish_status(self) -> None:
-        """On pf_slam/status when something changed; "final" once the last scan is posed."""
-        final = self.poses_published == self.scans_expected
-        status = {"node": self.get_name(), "final": final, "scans": self.scan_count, "faults": self.faults()}
-        if status != self._status_sent:
-            self.pub_status.publish(String(data=json.dumps(status)))
-            self._status_sent = status
 
     def _on_updated(self, msg: ParticleArray) -> None:
         if msg.update and msg.scan_index == self.waiting_for:
