@@ -56,6 +56,7 @@ def test_sample_bag_pose_error_and_map(sample_run):
     out, res = sample_run
     s = res.summary
     assert s["scans_published"] == s["scans_processed"] == 600 and s["scans_dropped"] == 0
+    assert s["complete"] and s["faults"]["scan_bad_ranges"] == 0 and not any(s["faults"].values())
     ev = metrics.evaluate(out / "trajectory.tum", SAMPLE.parent / "ground_truth.tum")
     assert ev["n_associated"] == 600
     # the simulator's odometry drifts by >1 m; the filter must stay within centimetres
