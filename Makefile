@@ -8,7 +8,7 @@ PARAMS ?= ros2_ws/src/pf_slam_nodes/config/sim_indoor.yaml
 OUT ?= runs/sample
 PYTEST_ARGS ?=
 
-.PHONY: setup run test bench bench-car lock clean
+.PHONY: setup run test bench bench-car bench-scaling lock clean
 
 setup:
 	@bash scripts/setup.sh
@@ -20,12 +20,17 @@ run: setup   ## the main job: the sample bag through the graph, then its error a
 test: setup
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
 
-bench: setup   ## prints tables; the CARMEN one is also written to runs/bench/carmen.md
+bench: setup   ## prints tables (also written to runs/bench/carmen*.md): 3 seeds one process, seed 0 one process per node
 	$(BIN)/pf-slam bench messages
 	$(BIN)/pf-slam bench carmen --data ../shared/data --out runs/bench --seeds 0 1 2
+	$(BIN)/pf-slam bench carmen --data ../shared/data --out runs/bench --seeds 0 --processes multi
+
+bench-scaling: setup   ## particles 10-1000 (intel_2726) and grids 500²-4000² (intel_910): wall, RTF, peak RSS, stage split; plots in docs/img (~25 min)
+	$(BIN)/pf-slam bench scaling --data ../shared/data --out runs/bench
 
 bench-car: setup   ## three simulated 300 s car drives (simulated once, ~15 min): ATE, DR, map F1, RTF vs ceiling
 	$(BIN)/pf-slam bench car --seeds 0 1 2 --out runs/bench
+	$(BIN)/pf-slam bench car --seeds 0 --out runs/bench --processes multi
 
 lock: setup   ## re-pin requirements/constraints.txt from the current venv
 	@{ echo "# Lock file for the pip-only install: exact versions measured to work together (ROS 2 Jazzy wheels,"; \

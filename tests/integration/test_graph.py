@@ -56,6 +56,7 @@ def test_sample_bag_pose_error_and_map(sample_run):
     out, res = sample_run
     s = res.summary
     assert s["scans_published"] == s["scans_processed"] == 600 and s["scans_dropped"] == 0
+    assert s["complete"] and s["faults"]["scan_bad_ranges"] == 0 and not any(s["faults"].values())
     ev = metrics.evaluate(out / "trajectory.tum", SAMPLE.parent / "ground_truth.tum")
     assert ev["n_associated"] == 600
     # the simulator's odometry drifts by >1 m; the filter must stay within centimetres
@@ -72,6 +73,12 @@ def test_sample_bag_pose_error_and_map(sample_run):
     # outputs a user expects
     assert (out / "map.pgm").is_file() and (out / "summary.json").is_file()
     assert list((out / "snapshots").glob("*.png"))
+    # per-stage split of a scan: every stage ran, and the parts add up to the wall time
+    split = s["stage_ms_per_scan"]
+    assert set(split) == {"predict", "correlate", "resample", "map", "field", "messaging"}
+    assert all(split[k] > 0 for k in ("predict", "correlate", "map", "field"))
+    assert split["messaging"] > 0
+    assert abs(sum(split.values()) * 600 / 1e3 - s["wall_time_s"]) < 0.01 * s["wall_time_s"] + 0.01
 
 
 def test_same_seed_same_trajectory_and_multiprocess_equal(sample_run, tmp_path, module_ros_domain):

@@ -6,7 +6,7 @@ import pytest
 from geometry_msgs.msg import PoseStamped
 from pf_slam_interfaces.msg import FogBatch
 from rclpy.serialization import deserialize_message, serialize_message
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import JointState, LaserScan
 
 from pf_slam_nodes.ros import cdr, convert
 
@@ -35,6 +35,21 @@ def test_fog_batch_yaw(roll):
     assert stamps.tolist() == [5, 6] and yaw.tolist() == [0.5, -0.5]
 
 
+@pytest.mark.parametrize("frame", ["l", "laser", "lidar_front"])
+def test_laser_scan_ranges(frame):
+    m = LaserScan()
+    m.header.stamp.sec, m.header.stamp.nanosec = 1_700_000_001, 7
+    m.header.frame_id = frame
+    m.angle_min, m.angle_max, m.angle_increment = -1.5, 1.5, 0.75
+    m.range_min, m.range_max = 0.1, 30.0
+    m.ranges = [1.0, float("nan"), -2.0, float("inf"), 4.5]
+    m.intensities = [1.0, 2.0]
+    stamp, angles, ranges = cdr.laser_scan_ranges(serialize_message(m))
+    assert stamp == 1_700_000_001_000_000_007 and angles == (-1.5, 1.5, 0.75)
+    np.testing.assert_array_equal(ranges, np.array(m.ranges, dtype=np.float32))
+    assert cdr.laser_scan_ranges(serialize_message(LaserScan()))[2].size == 0
+
+
 def test_bad_bytes_name_the_type():
     f = FogBatch()
     f.stamps_ns = array.array("q", [5, 6])
@@ -44,6 +59,8 @@ def test_bad_bytes_name_the_type():
     raw = serialize_message(JointState(position=[1.0, 2.0]))
     with pytest.raises(ValueError, match="JointState: truncated"):
         cdr.joint_state_positions(raw[:30])  # cut inside the positions
+    with pytest.raises(ValueError, match="LaserScan: truncated"):
+        cdr.laser_scan_ranges(serialize_message(LaserScan(ranges=[1.0] * 10))[:60])
     with pytest.raises(ValueError, match="PoseStamped: not a CDR"):
         cdr.pose_stamped_xy_yaw(b"\x01\x02")
 

@@ -477,9 +477,9 @@ def test_fog_batch_type_matches_msg_file():
 def test_csv_edge_cases(tmp_path, monkeypatch):
     """Header optional, float-formatted ns stamps kept exact, 'nan' first row is data (bad),
     blank lines ignored, warnings capped per file with a summary line."""
-    from pf_slam_nodes.io import kaist
+    from pf_slam_nodes.io import skips
 
-    monkeypatch.setattr(kaist, 'MAX_LINE_WARNINGS', 2)
+    monkeypatch.setattr(skips, 'MAX_LINE_WARNINGS', 2)
     root = tmp_path / 'kaist'
     make_dataset(root, n_enc=3, n_fog=3, n_scan=3, bad=False)
     shutil.rmtree(root / 'stereo_images')
@@ -497,7 +497,7 @@ def test_csv_edge_cases(tmp_path, monkeypatch):
     enc_w = [w for w in rep.warnings if 'encoder.csv' in w]
     assert enc_w[0].endswith('encoder.csv:1: NaN or inf timestamp; row skipped')
     assert enc_w[1].endswith('encoder.csv:5: timestamp steps back; row skipped')
-    assert enc_w[2].endswith('encoder.csv: 3 more bad rows not listed') and len(enc_w) == 3
+    assert enc_w[2].endswith('encoder.csv: 3 more skipped not listed') and len(enc_w) == 3
     enc = _msgs(tmp_path / 'bag', '/encoders')
     assert [t for t, _ in enc] == [T0, T0 + 10_000_000]
     np.testing.assert_array_equal(enc[1][1].position, [2 * np.pi / 4096, 4 * np.pi / 4096])

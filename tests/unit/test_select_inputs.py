@@ -8,7 +8,7 @@ SCAN, ODOM, JS, IMG = ("sensor_msgs/msg/LaserScan", "nav_msgs/msg/Odometry", "se
 
 
 def info(**topics):
-    return {"topics": {"/" + k.replace("__", "/"): (v, 10) for k, v in topics.items()}}
+    return {"path": "bag", "topics": {"/" + k.replace("__", "/"): (v, 10) for k, v in topics.items()}}
 
 
 def test_defaults_then_the_only_topic_of_a_type():
@@ -34,10 +34,13 @@ def test_requested_topics_and_errors_name_what_was_found():
         select_inputs("bag", i, {"scan": "/c"})
     with pytest.raises(RunError, match="/odo is nav_msgs/msg/Odometry; scan needs sensor_msgs/msg/LaserScan"):
         select_inputs("bag", i, {"scan": "/odo"})
-    with pytest.raises(RunError, match="needs nav_msgs/msg/Odometry"):
+    # nothing usable: the standard names' diagnosis (check_run_inputs) and the flags to name others
+    with pytest.raises(RunError, match=r"cannot run: no /odom or /encoders topic.*--odom-topic"):
         select_inputs("bag", info(scan=SCAN))
-    with pytest.raises(RunError, match="no sensor_msgs/msg/LaserScan"):
+    with pytest.raises(RunError, match=r"cannot run: no /scan topic.*--scan-topic"):
         select_inputs("bag", info(odom=ODOM))
+    with pytest.raises(RunError, match=r"cannot run: /scan is std_msgs/msg/String, expected sensor_msgs/msg/LaserScan"):
+        select_inputs("bag", info(scan="std_msgs/msg/String", odom=ODOM))
 
 
 def test_remaps_and_topics_from_a_parameter_file():

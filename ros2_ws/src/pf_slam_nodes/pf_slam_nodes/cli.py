@@ -93,8 +93,9 @@ def build_parser() -> argparse.ArgumentParser:
     pr.add_argument("--bag", help="a bag for bag_replay to open (default: bags/sample_indoor)")
 
     b = sub.add_parser("bench", help="benchmarks: ParticleArray layout; the graph on the CARMEN logs "
-                       "and on simulated car drives; the replay-only ceiling of a bag")
-    b.add_argument("what", choices=["messages", "carmen", "car", "ceiling"])
+                       "and on simulated car drives; the replay-only ceiling of a bag; scaling with "
+                       "particles and grid size")
+    b.add_argument("what", choices=["messages", "carmen", "car", "ceiling", "scaling"])
     b.add_argument("--bag", help="ceiling: the bag to replay")
     b.add_argument("--duration", type=float, default=300.0, help="car: simulated drive length (s)")
     b.add_argument("--particles", type=int, help="car: filter.num_particles (default: kaist.yaml)")
@@ -103,6 +104,11 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--datasets", nargs="*", help="subset of intel_910 intel_2726 mit-csail")
     b.add_argument("--seeds", type=int, nargs="*", default=[0])
     b.add_argument("--processes", choices=["single", "multi"], default="single")
+    b.add_argument("--sweep-particles", type=int, nargs="*",
+                   help="scaling: particle counts on intel_2726 (default 10 30 100 300 1000)")
+    b.add_argument("--sweep-grid", type=int, nargs="*",
+                   help="scaling: grid cells per side on intel_910 (default 500 1000 2000 4000)")
+    b.add_argument("--plot-dir", default="docs/img", help="scaling: where the PNG plots go")
     return p
 
 
@@ -177,6 +183,10 @@ def _dispatch(args: argparse.Namespace) -> int:
             if not args.bag:
                 raise ValueError("bench ceiling needs --bag BAG")
             print(json.dumps(replay_ceiling(args.bag), indent=2))
+        elif args.what == "scaling":
+            from .bench import scaling
+            print(scaling.main(args.data, args.out, args.sweep_particles, args.sweep_grid, args.plot_dir,
+                               args.seeds[0] if args.seeds else 0))
         else:
             from .bench import carmen
             print(carmen.main(args.data, args.out, args.datasets, tuple(args.seeds), args.processes))

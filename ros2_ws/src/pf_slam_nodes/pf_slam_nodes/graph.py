@@ -7,8 +7,11 @@ outputs.
 """
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import os
+import re
 import resource
 import shutil
 import signal
@@ -23,7 +26,7 @@ from typing import Any, Callable
 import numpy as np
 import yaml
 
-from .io.bag import bag_info, deserialize, read_bag, stamp_ns_of
+from .io.bag import BagError, bag_info, check_run_inputs, deserialize, read_bag, stamp_ns_of
 from .io.mapfile import render_snapshot, write_map
 from .io.trajectory import write_tum
 from .ros import cdr
@@ -35,6 +38,10 @@ CONFIG_DIR = Path(__file__).resolve().parents[1] / "config"
 
 class RunError(Exception):
     """A run cannot start or did not complete; the message says why."""
+
+
+#: the signals that stop a run early (partial outputs written) -> the exit code of `pf-slam run`
+STOP_SIGNALS = {"SIGINT": 130, "SIGTERM": 143}
 
 
 # ---------------------------------------------------------------------------- parameters
@@ -133,15 +140,34 @@ def select_inputs(bag: str, info: dict, requested: dict[str, str] | None = None)
         elif role == "scan" and role not in sel and of_type:
             raise RunError(f"{bag}: several LaserScan topics ({', '.join(of_type)}): choose one with --scan-topic")
     if "scan" not in sel:
-        raise RunError(f"{bag}: no sensor_msgs/msg/LaserScan topic (set --scan-topic); found: {found}")
+        raise _no_input(bag, info, f"no sensor_msgs/msg/LaserScan topic (set --scan-topic); found: {found}")
     if "odom" in sel and "encoders" in sel:
         del sel["odom" if "encoders" in req and "odom" not in req else "encoders"]
     if "odom" not in sel and "encoders" not in sel:
-        raise RunError(f"{bag}: needs nav_msgs/msg/Odometry (--odom-topic) or sensor_msgs/msg/JointState "
-                       f"wheel angles (--encoders-topic) for the motion model; found: {found}")
+        raise _no_input(bag, info, "needs nav_msgs/msg/Odometry (--odom-topic) or sensor_msgs/msg/JointState "
+                                   f"wheel angles (--encoders-topic) for the motion model; found: {found}")
     if "encoders" not in sel:
         sel.pop("fog", None)
     return sel
+
+
+def _canonical_view(info: dict, inputs: dict[str, str]) -> dict:
+    """`info` with the chosen input topics under the graph's default names, as check_run_inputs
+    expects; a topic on a default name that was not chosen is renamed out of the way."""
+    canon = {t: DEFAULT_INPUTS[r] for r, t in inputs.items()}
+    taken = set(canon.values())
+    topics = {canon.get(t, t + " (unused)" if t in taken else t): v for t, v in info["topics"].items()}
+    return dict(info, topics=topics)
+
+
+def _no_input(bag: str, info: dict, what: str) -> RunError:
+    """The error for a bag without a usable lidar or odometry: the standard names' diagnosis
+    (check_run_inputs: wrong types, missing topics, what was found) + how to name other topics."""
+    try:
+        check_run_inputs(info)
+    except BagError as e:
+        return RunError(f"{e}; or name the bag's topics: --scan-topic, --odom-topic, --encoders-topic")
+    return RunError(f"{bag}: {what}")
 
 
 def params_topics(layer: dict[str, dict[str, Any]]) -> dict[str, str]:
@@ -180,6 +206,7 @@ def detect_inputs(bag: str, info: dict, inputs: dict[str, str] | None = None) ->
     `inputs`: select_inputs()'s choice (default: select_inputs(bag, info))."""
     topics = info["topics"]
     inputs = select_inputs(bag, info) if inputs is None else inputs
+    check_run_inputs(_canonical_view(info, inputs))  # BagError: an input without messages, unknown types
     scan_topic = inputs["scan"]
     source = "odom" if "odom" in inputs else "encoders"
     topic = inputs[source]
@@ -289,6 +316,7 @@ class _Recorder:
         self.texture_msg = None
         self.texture_meta = None
         self.texture_status: dict | None = None
+        self.node_status: dict[str, dict] = {}  # pf_slam/status per node: fault counters
         self.t0 = time.monotonic()
         self._last_print = 0.0
         self._writer: threading.Thread | None = None  # the snapshot being written, if any
@@ -299,6 +327,8 @@ class _Recorder:
         node.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         node.create_subscription(OccupancyGrid, topics.MAP, self._on_map, qos.latched())
         node.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
+        from std_msgs.msg import String
+        node.create_subscription(String, topics.STATUS, self._on_node_status, qos.latched(depth=10))
         if texture:
             from nav_msgs.msg import MapMetaData
             from sensor_msgs.msg import Image
@@ -317,6 +347,18 @@ class _Recorder:
 
     def _on_texture_status(self, msg) -> None:
         self.texture_status = json.loads(msg.data)
+
+    def _on_node_status(self, msg) -> None:
+        status = json.loads(msg.data)
+        self.node_status[status["node"]] = status
+
+    def faults(self) -> dict[str, int]:
+        """The input faults the nodes counted (summary.json "faults")."""
+        out: dict[str, int] = {}
+        for status in self.node_status.values():
+            for kind, n in status.get("faults", {}).items():
+                out[kind] = out.get(kind, 0) + int(n)
+        return out
 
     def _on_replay_status(self, msg) -> None:
         self.replay_counts = dict(zip(msg.topics, (int(c) for c in msg.counts)))
@@ -567,7 +609,8 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
 
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=domain_id)
-    children: list[subprocess.Popen] = []
+    children: dict[str, subprocess.Popen] = {}
+    stop_signal: list[str] = []  # set by SIGINT / SIGTERM while the graph runs
     result: ResultRecorder | None = None
     nodes = []  # every node of this process, destroyed at the end: a node left alive keeps its
     ex = None   # DDS readers matched by later runs on the same domain (ghost subscribers)
@@ -597,28 +640,32 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
 
         def finished() -> bool:
             m = rec.map_msg
-            if len(rec.poses) >= scans_total:
-                return m is not None and stamp_ns_of(m) == rec.stamps[-1]
+            if len(rec.poses) >= scans_total:  # and the predictor's final fault counts are here
+                return (m is not None and stamp_ns_of(m) == rec.stamps[-1]
+                        and rec.node_status.get("predictor", {}).get("final", False))
             # paced replays (--rate N) may lose scans under load: once the bag is out and the
             # pipeline has been idle for drain_timeout_s, finish and report them as dropped
             return (rec.replay_counts is not None and m is not None
                     and time.monotonic() - state["last_progress"] > drain_timeout_s)
 
         def check() -> None:
-            """Every 50 ms: done? a child process gone? stuck? -> resolve `outcome` (the executor
-            then returns; checking on a timer keeps Python out of the per-message path)."""
+            """Every 50 ms: done? stopped by a signal? a child process gone? stuck? -> resolve
+            `outcome` with None (complete) or why the run stopped early (the executor then
+            returns; checking on a timer keeps Python out of the per-message path)."""
             if outcome.done():
+                return
+            if stop_signal:
+                outcome.set_result(stop_signal[0])
                 return
             if len(rec.poses) != state["last_count"]:
                 state["last_count"], state["last_progress"] = len(rec.poses), time.monotonic()
-            for c in children:
+            for name, c in children.items():
                 if c.poll() is not None:
-                    outcome.set_result(RunError(f"node process {c.args[2]} exited with code "
-                                                f"{c.returncode}; log: {out / 'logs'}"))
+                    outcome.set_result(f"node {name} {_exit_text(c.returncode)}; log: {out / 'logs' / name}.log")
                     return
             if time.monotonic() - state["last_progress"] > idle_timeout_s:
-                outcome.set_result(RunError(f"no progress for {idle_timeout_s:.0f} s: "
-                                            f"{len(rec.poses)}/{scans_total} scans processed"))
+                outcome.set_result(f"no progress for {idle_timeout_s:.0f} s: "
+                                   f"{len(rec.poses)}/{scans_total} scans processed")
             elif finished():
                 slam_done.setdefault("t", time.monotonic())
                 # the texture node finishes on its own after the last pair (it may skip pairs
@@ -630,29 +677,21 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         from rclpy.task import Future
         outcome = Future()
         rec_node.create_timer(0.05, check)
-        while not outcome.done():
-            ex.spin_until_future_complete(outcome, timeout_sec=1.0)
-        if isinstance(outcome.result(), RunError):
-            raise outcome.result()
+        with _catch_stop_signals(stop_signal):
+            while not outcome.done():
+                ex.spin_until_future_complete(outcome, timeout_sec=1.0)
+        stopped_by = outcome.result()
         wall = (slam_done["t"] if slam_done else time.monotonic()) - t_start
         rec.print_progress(final=True)
         if result is not None:
             _drain_result(ex, result, len(rec.poses))
             result.finish(rec.map_msg)
         texture_out = None
-        if texture_node is not None and texture_node.wait_idle(30.0):
+        if stopped_by is None and texture_node is not None and texture_node.wait_idle(30.0):
             texture_out = texture_node.render()  # in the final /map geometry
-        scans_published = (rec.replay_counts or {}).get("/scan", scans_total)
+        stage_split = _stage_split(nodes, wall, len(rec.poses)) if processes == "single" else None
     finally:
-        for c in children:
-            if c.poll() is None:
-                c.send_signal(signal.SIGINT)
-        for c in children:
-            try:
-                c.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                c.kill()
-                c.wait()
+        _stop_children(children)
         if ex is not None:
             ex.shutdown()
         if result is not None:
@@ -662,25 +701,22 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         if ctx.ok():
             rclpy.shutdown(context=ctx)
 
-    from .ros import convert
-    occ, res, origin = convert.msg_to_grid(rec.map_msg)
-    write_map(out, occ, res, origin)
-    stamps = np.array(rec.stamps, dtype=np.int64)
-    poses = np.array(rec.poses)
-    write_tum(out / "trajectory.tum", stamps / 1e9, poses)
-    rec.snapshot("final.png", wait=True)
-    texture_summary = _write_texture(out, rec, texture_out, occ, res, origin) if texture else None
+    extra = _write_outputs(out, rec, texture, texture_out)
+    covered_s = bag_duration_s  # a stopped run: the real-time factor of the part it processed
+    if stopped_by is not None:
+        covered_s = (rec.stamps[-1] - info["start_ns"]) / 1e9 if rec.stamps else 0.0
+    scans_published = (rec.replay_counts or {}).get(inputs["scan"])  # None: the replay did not finish
     peak = max(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
                resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss) / 1024.0
     summary = {
         "bag": str(bag),
         "bag_duration_s": round(bag_duration_s, 3),
         "wall_time_s": round(wall, 3),
-        "real_time_factor": round(bag_duration_s / wall, 2) if wall > 0 else None,
+        "real_time_factor": round(covered_s / wall, 2) if wall > 0 else None,
         "scans_in_bag": scans_total,
-        "scans_published": int(scans_published),
+        "scans_published": scans_published,
         "scans_processed": len(rec.poses),
-        "scans_dropped": int(scans_published) - len(rec.poses),
+        "scans_dropped": None if scans_published is None else int(scans_published) - len(rec.poses),
         "scans_corrected": rec.updates,
         "particles": int(per_node["predictor"].get("filter.num_particles", _default_particles())),
         "processes": processes,
@@ -689,15 +725,110 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         "peak_rss_mb": round(peak, 1),
         "snapshots_written": rec.snapshots_written,
         "snapshots_skipped": rec.snapshots_skipped,
-        "complete": True,
+        "faults": rec.faults(),
+        "complete": stopped_by is None,
+        **({} if stopped_by is None else {"stopped_by": stopped_by}),
+        **extra,
     }
+    if stage_split is not None:
+        summary["stage_ms_per_scan"] = stage_split
     summary["inputs"] = inputs
     if result is not None:
         summary["result_mcap"] = {"file": result.path.name, "messages": dict(result.counts)}
-    if texture_summary is not None:
-        summary["texture"] = texture_summary
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return RunResult(summary, rec.stamps, rec.poses)
+
+
+def _stage_split(nodes, wall_s: float, scans: int) -> dict[str, float]:
+    """Wall ms per processed scan in each core stage of the single-process graph (the stages'
+    own clocks) and the rest ("messaging": (de)serialisation, odometry parsing, executor and
+    recorder). The texture node works on its own thread, in parallel: not part of this split
+    (its ms per frame is in the texture summary)."""
+    from .core.stages import stage_seconds
+    seconds = stage_seconds(*[n.stage for n in nodes if hasattr(n, "stage")])[0]
+    seconds["messaging"] = wall_s - sum(seconds.values())
+    return {k: round(1e3 * v / max(scans, 1), 3) for k, v in seconds.items()}
+
+
+def _write_outputs(out: Path, rec: _Recorder, texture: bool, texture_out) -> dict:
+    """map (if one arrived), trajectory (the scans posed so far), final snapshot and texture;
+    returns the summary entries they add. Also what a stopped run leaves behind."""
+    from .ros import convert
+    write_tum(out / "trajectory.tum", np.array(rec.stamps, dtype=np.int64) / 1e9,
+              np.array(rec.poses).reshape(-1, 3))
+    if rec.map_msg is None:
+        return {"map": None}
+    occ, res, origin = convert.msg_to_grid(rec.map_msg)
+    write_map(out, occ, res, origin)
+    rec.snapshot("final.png", wait=True)
+    return {"texture": _write_texture(out, rec, texture_out, occ, res, origin)} if texture else {}
+
+
+@contextlib.contextmanager
+def _catch_stop_signals(stop: list[str]):
+    """While the graph spins: SIGINT / SIGTERM append their name to `stop` (the run's check
+    timer then ends it and the outputs so far are written) instead of killing the process.
+    Only the main thread can set handlers; elsewhere the defaults stay."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = {sig: signal.signal(getattr(signal, sig), lambda num, _frame: stop.append(signal.Signals(num).name))
+           for sig in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(getattr(signal, sig), handler)
+
+
+def _exit_text(code: int) -> str:
+    return f"died ({signal.Signals(-code).name})" if code < 0 else f"exited with code {code}"
+
+
+def _stop_children(children: dict[str, subprocess.Popen]) -> None:
+    """SIGINT to the node processes still running, SIGKILL to any that ignore it for 10 s; then
+    remove the shared-memory segments that a killed one left (it could not clean up)."""
+    for c in children.values():
+        if c.poll() is None:
+            c.send_signal(signal.SIGINT)
+    for c in children.values():
+        try:
+            c.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            c.kill()
+            c.wait()
+    if any(c.returncode < 0 and c.returncode != -signal.SIGINT for c in children.values()):
+        remove_stale_shm()
+
+
+def remove_stale_shm(shm: Path = Path("/dev/shm"), min_age_s: float = 2.0) -> list[str]:
+    """Remove the shared-memory segments of Fast DDS participants that are gone (a killed node
+    cannot remove its own), as `fastdds shm clean` does: a live participant holds an exclusive
+    flock on its segment's ``fastrtps_<id>_el`` file, so a lockable one (older than `min_age_s`:
+    not one being created right now) is stale. The ``fastrtps_port*`` segments are shared by all
+    participants and persist by design: left alone. Returns the names removed."""
+    removed = []
+    for lock in shm.glob("fastrtps_*_el"):
+        if not re.fullmatch(r"fastrtps_[0-9a-f]{16}_el", lock.name):
+            continue
+        try:
+            if time.time() - lock.stat().st_mtime < min_age_s:
+                continue
+            fd = os.open(lock, os.O_RDONLY)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            continue  # held: its participant is alive
+        finally:
+            os.close(fd)
+        seg = lock.name[:-3]
+        for f in (shm / seg, lock):
+            with contextlib.suppress(FileNotFoundError):
+                f.unlink()
+                removed.append(f.name)
+    return removed
 
 
 def _write_texture(out: Path, rec: _Recorder, rendered, occ: np.ndarray, res: float,
@@ -736,21 +867,24 @@ def _default_particles() -> int:
 
 
 def _spawn(per_node: dict[str, dict[str, Any]], domain_id: int, out: Path,
-           remaps: dict[str, str] | None = None) -> list[subprocess.Popen]:
-    """Start one process per node, each with its own parameter file."""
+           remaps: dict[str, str] | None = None) -> dict[str, subprocess.Popen]:
+    """Start one process per node, each with its own parameter file, in their own session: a
+    Ctrl-C in the terminal reaches only this process, which stops them in order. They also
+    die with it (PF_SLAM_PARENT_PID, see nodes.common.run_node), so none is left orphaned."""
     logs = out / "logs"
     logs.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    procs = []
+    env["PF_SLAM_PARENT_PID"] = str(os.getpid())
+    procs = {}
     for name in per_node:  # parameter files next to the logs: what each process ran with
         pfile = logs / f"{name}.params.yaml"
         pfile.write_text(yaml.safe_dump({name: {"ros__parameters": unflatten(per_node[name])}}))
-        log = open(logs / f"{name}.log", "w")
-        procs.append(subprocess.Popen(
-            [sys.executable, "-m", f"pf_slam_nodes.nodes.{name}", "--ros-args", "--params-file", str(pfile)]
-            + (_remap_args(remaps) or [])[1:],
-            env=env, stdout=log, stderr=subprocess.STDOUT))
+        with open(logs / f"{name}.log", "w") as log:
+            procs[name] = subprocess.Popen(
+                [sys.executable, "-m", f"pf_slam_nodes.nodes.{name}", "--ros-args", "--params-file", str(pfile)]
+                + (_remap_args(remaps) or [])[1:],
+                env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     return procs
 
 
@@ -761,13 +895,23 @@ def run_cli(args: Any, log: Callable[[str], None] = print) -> int:
               record_map_every_s=getattr(args, "record_map_every", None),
               input_topics={role: getattr(args, f"{role}_topic", None) for role in INPUT_TYPES})
     s = res.summary
-    log(f"{s['scans_processed']} scans ({s['scans_corrected']} corrected), {s['scans_dropped']} dropped, "
+    dropped = "?" if s["scans_dropped"] is None else s["scans_dropped"]
+    log(f"{s['scans_processed']} scans ({s['scans_corrected']} corrected), {dropped} dropped, "
         f"wall {s['wall_time_s']:.1f} s, RTF {s['real_time_factor']}x; outputs in {args.out}")
+    if s["scans_dropped"]:
+        log(f"warning: {s['scans_dropped']} of {s['scans_published']} scans published were dropped: the graph "
+            f"fell behind --rate {s['rate']} (--rate max never drops)")
+    if any(s["faults"].values()):
+        log("input faults (skipped or clamped, the run went on): "
+            + ", ".join(f"{k} {n}" for k, n in s["faults"].items() if n) + "; see the node logs")
     if "texture" in s:
         t = s["texture"]
         log(f"texture: {t.get('frames_processed')} of {t.get('frames_received')} stereo pairs used "
             f"({t.get('frames_skipped')} skipped under load, {t.get('frames_dropped')} without a pose), "
             f"{t['cells_coloured']} cells coloured; {', '.join(t['files']) or 'no image'}")
+    if not s["complete"]:
+        log(f"run incomplete: stopped by {s['stopped_by']}; the outputs hold the scans processed until then")
+        return STOP_SIGNALS.get(s["stopped_by"], 1)
     return 0
 
 

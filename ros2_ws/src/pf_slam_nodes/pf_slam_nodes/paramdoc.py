@@ -23,8 +23,9 @@ VARIANTS: list[tuple[str, dict[str, Any]]] = [
 ]
 _ROS_OWN = ("use_sim_time", "start_type_description_service", "qos_overrides.")
 _UNSET = object()  # only seen overridden: a required parameter
-_UNITS = {"m", "rad", "s", "px", "deg", "%", "cells", "probability", "m/m", "m/rad", "rad/m", "rad/rad", "s/s"}
-_SUFFIX_UNITS = (("_deg", "deg"), ("_px", "px"), ("_per_m", "1/m"), ("_per_rad", "1/rad"),
+_UNITS = {"m", "rad", "s", "px", "deg", "%", "cells", "probability", "m/m", "m/rad", "rad/m", "rad/rad", "s/s",
+          "m/s"}
+_SUFFIX_UNITS = (("_mps", "m/s"), ("_deg", "deg"), ("_px", "px"), ("_per_m", "1/m"), ("_per_rad", "1/rad"),
                  ("_m", "m"), ("_rad", "rad"), ("_s", "s"))
 
 

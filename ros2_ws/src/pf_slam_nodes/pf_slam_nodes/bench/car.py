@@ -18,6 +18,7 @@ from ..core import metrics
 from ..core.odometry import GyroBuffer, WheelOdometryIntegrator
 from ..io.calib import parse_encoder_params
 from ..io.trajectory import read_trajectory, write_tum
+from . import stage_table
 
 KAIST_YAML = Path(__file__).resolve().parents[2] / "config" / "kaist.yaml"
 
@@ -88,7 +89,7 @@ def bench(out_dir: Path, seeds=(0,), duration_s: float = 300.0, processes: str =
             "wall_s": s["wall_time_s"], "rtf": s["real_time_factor"],
             "ceiling_rtf": ceiling["real_time_factor"],
             "ratio_to_ceiling": round(s["real_time_factor"] / ceiling["real_time_factor"], 3),
-            "peak_rss_mb": s["peak_rss_mb"]})
+            "peak_rss_mb": s["peak_rss_mb"], "stage_ms_per_scan": s.get("stage_ms_per_scan")})
     return rows
 
 
@@ -111,6 +112,8 @@ def main(out_dir: str, seeds=(0,), duration_s: float = 300.0, processes: str = "
     out.mkdir(parents=True, exist_ok=True)
     rows = bench(out, seeds, duration_s, processes, particles)
     table = format_table(rows)
+    if processes == "single":
+        table += "\n\nTime per scan by stage (ms):\n\n" + stage_table(rows, ("seed", "particles"))
     (out / f"car_{processes}.md").write_text(table + "\n")
     (out / f"car_{processes}.json").write_text(json.dumps(rows, indent=2) + "\n")
     return table

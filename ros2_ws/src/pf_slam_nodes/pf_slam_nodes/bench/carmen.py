@@ -12,6 +12,7 @@ from pathlib import Path
 from ..core.metrics import evaluate
 from ..graph import run
 from ..io.convert import convert_carmen
+from . import stage_table
 
 #: name -> (log, relations file or None, reference trajectory or None)
 DATASETS = {
@@ -73,6 +74,8 @@ def main(data_dir: str, out_dir: str, names=None, seeds=(0,), processes="single"
     out.mkdir(parents=True, exist_ok=True)
     rows = bench(Path(data_dir), out, names or tuple(DATASETS), seeds, processes)
     table = format_table(rows)
-    (out / "carmen.md").write_text(table + "\n")
-    (out / "carmen.json").write_text(json.dumps(rows, indent=2) + "\n")
+    if processes == "single":
+        table += "\n\nTime per scan by stage (ms):\n\n" + stage_table(rows, ("dataset", "seed", "particles"))
+    (out / f"carmen_{processes}.md").write_text(table + "\n")
+    (out / f"carmen_{processes}.json").write_text(json.dumps(rows, indent=2) + "\n")
     return table

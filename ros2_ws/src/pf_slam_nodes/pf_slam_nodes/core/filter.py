@@ -73,7 +73,8 @@ def _resample_from_u(log_w: np.ndarray, u: np.ndarray) -> np.ndarray:
     w = np.exp(normalize_log_weights(log_w))
     c = np.cumsum(w)
     c /= c[-1]
-    idx = np.searchsorted(c, u, side="right")
+    # (i + r) / N rounds to 1.0 for r just below 1: keep u < 1 so a zero-weight tail is never drawn
+    idx = np.searchsorted(c, np.minimum(u, np.nextafter(1.0, 0.0)), side="right")
     return np.minimum(idx, w.size - 1).astype(np.int64)
 
 

@@ -225,6 +225,10 @@ class LogOddsGrid:
         # continuous cell coordinates of the sensor and the beam ends
         sx = (pose[0] - self.origin[0]) / res
         sy = (pose[1] - self.origin[1]) / res
+        reach = usable / res + 1.0  # no traced beam is longer than range_max_usable_m
+        if not (-reach <= sx <= self.width + reach and -reach <= sy <= self.height + reach):
+            empty = np.zeros(0, dtype=np.int64)  # NaN pose, or too far to touch the grid: the
+            return empty, empty  # int casts below would be undefined for such coordinates
         ang = pose[2] + a
         ex = sx + r * np.cos(ang) / res
         ey = sy + r * np.sin(ang) / res

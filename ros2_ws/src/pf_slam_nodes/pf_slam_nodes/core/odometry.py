@@ -129,9 +129,15 @@ class WheelOdometryIntegrator:
 
     Differential drive, midpoint rule (:func:`integrate_diff_drive`). When gyro increments are
     given (FOG), the yaw change of a step is their sum instead of the wheels' difference.
+
+    ``max_speed_mps``: a step in which a wheel would have covered more than
+    ``max_speed_mps * max(dt, 0.1 s)`` is an encoder counter jump (a reset, a wrap, a glitch):
+    its wheel motion is discarded (the counters are re-based there; a gyro's yaw still applies)
+    and counted in ``jumps``. Only checked when :meth:`step` is given ``dt_s``.
     """
 
-    def __init__(self, left_diameter_m: float, right_diameter_m: float, wheel_base_m: float) -> None:
+    def __init__(self, left_diameter_m: float, right_diameter_m: float, wheel_base_m: float,
+                 max_speed_mps: float = math.inf) -> None:
         for name, v in (("left_diameter_m", left_diameter_m), ("right_diameter_m", right_diameter_m),
                         ("wheel_base_m", wheel_base_m)):
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -139,6 +145,10 @@ class WheelOdometryIntegrator:
         self.left_diameter_m = float(left_diameter_m)
         self.right_diameter_m = float(right_diameter_m)
         self.wheel_base_m = float(wheel_base_m)
+        if not max_speed_mps > 0:
+            raise ValueError(f"max_speed_mps must be > 0, got {max_speed_mps!r}")
+        self.max_speed_mps = float(max_speed_mps)
+        self.jumps = 0
         self.pose = np.zeros(3)
         self._last: Optional[tuple[float, float]] = None
         self._pending_gyro_yaw = 0.0
@@ -149,13 +159,18 @@ class WheelOdometryIntegrator:
         self.use_gyro = True
         self._pending_gyro_yaw += float(dyaw_rad)
 
-    def step(self, left_rad: float, right_rad: float) -> np.ndarray:
-        """Advance with new cumulative wheel angles; returns the pose (odometry frame)."""
+    def step(self, left_rad: float, right_rad: float, dt_s: Optional[float] = None) -> np.ndarray:
+        """Advance with new cumulative wheel angles (``dt_s`` since the previous step, for the
+        counter-jump check); returns the pose (odometry frame)."""
         if self._last is None:
             self._last = (left_rad, right_rad)
             return self.pose.copy()
-        d, w = wheel_odometry(left_rad - self._last[0], right_rad - self._last[1],
-                              self.left_diameter_m, self.right_diameter_m, self.wheel_base_m)
+        dl, dr = left_rad - self._last[0], right_rad - self._last[1]
+        if dt_s is not None and max(abs(dl) * self.left_diameter_m, abs(dr) * self.right_diameter_m) / 2 \
+                > self.max_speed_mps * max(dt_s, 0.1):
+            self.jumps += 1
+            dl = dr = 0.0
+        d, w = wheel_odometry(dl, dr, self.left_diameter_m, self.right_diameter_m, self.wheel_base_m)
         if self.use_gyro:
             w = self._pending_gyro_yaw
             self._pending_gyro_yaw = 0.0

@@ -9,7 +9,6 @@ the node graph, bit for bit. Used by tests, tuning and the stage profile of the 
 from __future__ import annotations
 
 import math
-import time
 from typing import Optional
 
 import numpy as np
@@ -19,9 +18,9 @@ from .config import (CorrelationConfig, FilterConfig, GridConfig, LaserConfig, O
 from .correlation import GridLikelihoodField
 from .grid import LogOddsGrid
 from .motion import compose
-from .stages import CorrectionStage, MappingStage, PredictionStage
+from .stages import CorrectionStage, MappingStage, PredictionStage, STAGE_STEPS, stage_seconds
 
-STAGES = ("predict", "correlate", "map", "field")
+STAGES = STAGE_STEPS
 
 
 class ParticleFilterSlam:
@@ -38,7 +37,8 @@ class ParticleFilterSlam:
     Attributes
     ----------
     timings : dict[str, float]
-        Accumulated wall time (s) per stage (``STAGES``); ``counts`` the number of calls.
+        Accumulated wall time (s) per stage (``STAGES``, from the stages' own clocks, as in the
+        nodes); ``counts`` the number of calls.
     """
 
     def __init__(self, filter_cfg: FilterConfig, motion_cfg: OdometryMotionConfig, grid_cfg: GridConfig,
@@ -47,10 +47,16 @@ class ParticleFilterSlam:
         self.predictor = PredictionStage(filter_cfg, motion_cfg)
         self.corrector = CorrectionStage(filter_cfg, grid_cfg, corr_cfg, resample_cfg, laser_cfg)
         self.mapper = MappingStage(filter_cfg, grid_cfg, laser_cfg)
-        self.timings = {k: 0.0 for k in STAGES}
-        self.counts = {k: 0 for k in STAGES}
         self.num_updates = 0  # corrections after the first scan
         self._pose: Optional[np.ndarray] = None
+
+    @property
+    def timings(self) -> dict[str, float]:
+        return stage_seconds(self.predictor, self.corrector, self.mapper)[0]
+
+    @property
+    def counts(self) -> dict[str, int]:
+        return stage_seconds(self.predictor, self.corrector, self.mapper)[1]
 
     @property
     def particles(self) -> np.ndarray:
@@ -81,13 +87,6 @@ class ParticleFilterSlam:
     def num_resamples(self) -> int:
         return self.corrector.num_resamples
 
-    def _timed(self, stage: str, fn, *args):
-        t0 = time.perf_counter()
-        out = fn(*args)
-        self.timings[stage] += time.perf_counter() - t0
-        self.counts[stage] += 1
-        return out
-
     def process_odometry_scan(self, stamp: float, odom_pose: np.ndarray, ranges: np.ndarray,
                               angles: np.ndarray, range_min: float = 0.0,
                               range_max: float = math.inf) -> np.ndarray:
@@ -111,14 +110,14 @@ class ParticleFilterSlam:
             last corrected pose (+) odometry since then otherwise.
         """
         first = self._pose is None
-        update, delta = self._timed("predict", self.predictor.predict, odom_pose)
+        update, delta = self.predictor.predict(odom_pose)
         if not update:
             return compose(self._pose, delta)
-        c = self._timed("correlate", self.corrector.correct, self.predictor.particles,
-                        self.predictor.log_weights, ranges, angles, range_min, range_max)
+        c = self.corrector.correct(self.predictor.particles, self.predictor.log_weights, ranges, angles,
+                                   range_min, range_max)
         self.predictor.set_corrected(c.particles, c.log_weights)
-        patch = self._timed("map", self.mapper.integrate, c.pose, ranges, angles, range_min, range_max)
-        self._timed("field", self.corrector.apply_patch, patch)
+        patch = self.mapper.integrate(c.pose, ranges, angles, range_min, range_max)
+        self.corrector.apply_patch(patch)
         self._pose = c.pose.copy()
         self.num_updates += 0 if first else 1
         return c.pose.copy()

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from typing import Optional
 
 import numpy as np
@@ -45,6 +46,34 @@ class MapPatch:
     origin: np.ndarray
 
 
+class StageClock:
+    """Wall time (s) and calls per named step of a stage: ``t0 = perf_counter(); ...;
+    clock.add("name", t0)``. Read by the ROS-free loop and by `pf-slam run` (per-stage split)."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+        self.calls: dict[str, int] = {}
+
+    def add(self, name: str, t0: float) -> None:
+        self.seconds[name] = self.seconds.get(name, 0.0) + (time.perf_counter() - t0)
+        self.calls[name] = self.calls.get(name, 0) + 1
+
+
+def stage_seconds(*stages) -> tuple[dict[str, float], dict[str, int]]:
+    """The stages' clocks merged: (seconds, calls) per step, every step of ``STAGE_STEPS``."""
+    seconds = {k: 0.0 for k in STAGE_STEPS}
+    calls = {k: 0 for k in STAGE_STEPS}
+    for st in stages:
+        for k, v in st.clock.seconds.items():
+            seconds[k] += v
+            calls[k] += st.clock.calls[k]
+    return seconds, calls
+
+
+#: the steps the stages time, in pipeline order
+STAGE_STEPS = ("predict", "correlate", "resample", "map", "field")
+
+
 class PredictionStage:
     """Owns the particle set between corrections; gates updates on travelled distance."""
 
@@ -56,6 +85,7 @@ class PredictionStage:
         self.particles = np.zeros((n, 3))
         self.log_weights = np.full(n, -math.log(n))
         self.odom_at_update: Optional[np.ndarray] = None
+        self.clock = StageClock()  # "predict": the motion model's sampling
 
     def predict(self, odom_pose: np.ndarray) -> tuple[bool, np.ndarray]:
         """Odometry pose at a scan -> (update?, increment since the last correction).
@@ -72,8 +102,10 @@ class PredictionStage:
         update, delta = self.gate(odom)
         if not update:
             return False, delta
+        t0 = time.perf_counter()
         self.particles = sample_odometry_motion(self.particles, delta, self.motion_cfg, self.rng)
         self.odom_at_update = odom.copy()
+        self.clock.add("predict", t0)
         return True, delta
 
     def gate(self, odom_pose: np.ndarray) -> tuple[bool, np.ndarray]:
@@ -117,6 +149,7 @@ class CorrectionStage:
         self.pose = np.zeros(3)
         self.num_corrections = 0
         self.num_resamples = 0
+        self.clock = StageClock()  # "correlate" (+ weights), "resample" (+ pose estimate), "field"
 
     def apply_patch(self, patch: MapPatch) -> int:
         """Bring the likelihood field up to date with a map patch; returns the cells changed.
@@ -124,6 +157,12 @@ class CorrectionStage:
         The field covers the grid the mapping stage builds around the first corrected pose.
         Cells of the patch outside that grid are ignored.
         """
+        t0 = time.perf_counter()
+        changed = self._apply_patch(patch)
+        self.clock.add("field", t0)
+        return changed
+
+    def _apply_patch(self, patch: MapPatch) -> int:
         if self.field is None:
             h, w, origin = grid_geometry(self.grid_cfg, self.pose[:2])
             self.field = GridLikelihoodField(h, w, float(self.grid_cfg.resolution_m), origin, self.corr_cfg)
@@ -153,6 +192,7 @@ class CorrectionStage:
     def correct(self, particles: np.ndarray, log_weights: np.ndarray, ranges: np.ndarray,
                 angles: np.ndarray, range_min: float = 0.0, range_max: float = math.inf) -> Correction:
         """Correct a predicted set with a scan (ranges (B,), beam angles (B,) in the sensor frame)."""
+        t0 = time.perf_counter()
         particles = np.asarray(particles, dtype=np.float64).reshape(-1, 3)
         log_w = np.asarray(log_weights, dtype=np.float64)
         ranges, angles, offset = planar_scan(ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset)
@@ -165,6 +205,8 @@ class CorrectionStage:
         if matched:
             particles, scores = correlate(particles, pts, self.field, self.corr_cfg)
             log_w = update_log_weights(log_w, scores, self.corr_cfg.temperature)
+        self.clock.add("correlate", t0)
+        t0 = time.perf_counter()
         if self.filter_cfg.pose_estimate == "mean":
             w = np.exp(log_w - log_w.max())
             w /= w.sum()
@@ -182,6 +224,7 @@ class CorrectionStage:
             self.num_resamples += 1
         self.pose = pose
         self.num_corrections += 1
+        self.clock.add("resample", t0)
         return Correction(particles, log_w, pose, resampled, bool(matched))
 
 
@@ -196,6 +239,7 @@ class MappingStage:
         self.grid: Optional[LogOddsGrid] = None
         self.pose: Optional[np.ndarray] = None
         self._occ: Optional[np.ndarray] = None  # int8 occupancy of the whole grid, kept current
+        self.clock = StageClock()  # "map": ray tracing + log-odds + the patch
 
     @property
     def ready(self) -> bool:
@@ -204,6 +248,13 @@ class MappingStage:
     def integrate(self, pose: np.ndarray, ranges: np.ndarray, angles: np.ndarray,
                   range_min: float = 0.0, range_max: float = math.inf) -> MapPatch:
         """Integrate a scan at a corrected pose; returns the patch of the cells it touched."""
+        t0 = time.perf_counter()
+        patch = self._integrate(pose, ranges, angles, range_min, range_max)
+        self.clock.add("map", t0)
+        return patch
+
+    def _integrate(self, pose: np.ndarray, ranges: np.ndarray, angles: np.ndarray,
+                   range_min: float, range_max: float) -> MapPatch:
         pose = np.asarray(pose, dtype=np.float64).reshape(3)
         if self.grid is None:
             self.grid = LogOddsGrid(self.grid_cfg, center_xy=pose[:2])

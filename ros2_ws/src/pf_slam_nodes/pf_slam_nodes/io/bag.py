@@ -17,11 +17,13 @@ Reading::
         msg = deserialize(raw, msgtype)          # rosbags object; rclpy users: deserialize_message
 
 Any failure to open or read a bag (missing path, not a bag, corrupt file) raises ``BagError``
-naming the path and the cause.
+naming the path and the cause. ``check_run_inputs`` says, in one line, what a bag lacks for
+``pf-slam run`` (topics, their types, message types this ROS install cannot publish).
 """
 
 from __future__ import annotations
 
+import importlib
 import math
 import os
 import sqlite3
@@ -44,6 +46,7 @@ __all__ = [
     'STORAGES',
     'TYPESTORE',
     'bag_info',
+    'check_run_inputs',
     'camera_info',
     'clock',
     'deserialize',
@@ -78,7 +81,7 @@ LATCHED_QOS = Qos(
     avoid_ros_namespace_conventions=False)
 
 # What rosbags and its storage backends raise on a missing, foreign or damaged bag.
-_READ_ERRORS = (ReaderError, OSError, ValueError, KeyError, IndexError, TypeError,
+_READ_ERRORS = (ReaderError, OSError, ValueError, KeyError, IndexError, TypeError, OverflowError,
                 AttributeError, struct.error, sqlite3.Error, EOFError, UnicodeDecodeError)
 
 
@@ -258,6 +261,56 @@ def bag_info(path: str | os.PathLike) -> dict:
     return {'path': str(p), 'topics': topics, 'start_ns': start, 'end_ns': start + duration,
             'duration_ns': duration, 'message_count': count, 'storage': storage,
             'custom_data': custom}
+
+
+#: Topics ``pf-slam run`` reads, with the message types it accepts on each.
+RUN_TOPICS = {
+    '/scan': ('sensor_msgs/msg/LaserScan',),
+    '/odom': ('nav_msgs/msg/Odometry',),
+    '/encoders': ('sensor_msgs/msg/JointState',),
+    '/fog': ('pf_slam_interfaces/msg/FogBatch', 'geometry_msgs/msg/Vector3Stamped'),
+    '/tf_static': ('tf2_msgs/msg/TFMessage',),
+    '/stereo/left/image_raw': ('sensor_msgs/msg/Image',),
+    '/stereo/right/image_raw': ('sensor_msgs/msg/Image',),
+    '/stereo/left/camera_info': ('sensor_msgs/msg/CameraInfo',),
+    '/stereo/right/camera_info': ('sensor_msgs/msg/CameraInfo',),
+}
+RUN_NEEDS = ('/scan [sensor_msgs/msg/LaserScan] with messages, and /odom [nav_msgs/msg/Odometry] '
+             'or /encoders [sensor_msgs/msg/JointState]')
+
+
+def ros_type_available(msgtype: str) -> bool:
+    """Whether this Python environment has the ROS message class ``pkg/msg/Name``."""
+    pkg, _, name = msgtype.rpartition('/msg/')
+    try:
+        return bool(pkg) and hasattr(importlib.import_module(f'{pkg}.msg'), name)
+    except ImportError:
+        return False
+
+
+def check_run_inputs(info: dict) -> None:
+    """Raise ``BagError`` (one line) unless the bag of ``info`` (``bag_info``) can be run.
+
+    It needs ``RUN_NEEDS``; a topic of ``RUN_TOPICS`` must carry one of its types; every
+    topic's type must be importable (the replay publishes every topic). The message lists all
+    problems, then what the bag has and what is needed.
+    """
+    topics = info['topics']
+    problems = [f'{t} is {m}, expected {" or ".join(RUN_TOPICS[t])}'
+                for t, (m, _) in sorted(topics.items()) if m not in RUN_TOPICS.get(t, (m,))]
+    if '/scan' not in topics:
+        problems.append('no /scan topic')
+    elif topics['/scan'][1] == 0:
+        problems.append('/scan has no messages')
+    if '/odom' not in topics and '/encoders' not in topics:
+        problems.append('no /odom or /encoders topic')
+    unknown = sorted({m for m, _ in topics.values() if not ros_type_available(m)})
+    if unknown:
+        problems.append(f'message types unknown to this ROS install: {", ".join(unknown)}')
+    if problems:
+        found = ', '.join(f'{t} [{m}] ({n})' for t, (m, n) in sorted(topics.items())) or 'no topic'
+        raise BagError(f'{info["path"]}: cannot run: {"; ".join(problems)}. Found: {found}. '
+                       f'Needs: {RUN_NEEDS}')
 
 
 def _storage_of(p: Path) -> str:

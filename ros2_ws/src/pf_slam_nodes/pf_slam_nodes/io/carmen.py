@@ -32,11 +32,12 @@ Everything else
 ---------------
 * ``#`` lines are comments; empty lines are ignored.
 * Other message types (``PARAM``, ``SYNC``, ``RAWLASER1`` ...) are skipped and counted in
-  ``CarmenLog.skipped`` under their type name.
-* A malformed line (wrong number of fields for its beam count, a non-numeric field, NaN/inf,
-  a negative range) is skipped, counted under ``"malformed <TYPE>"`` and reported in
-  ``CarmenLog.warnings`` as ``file:line: TYPE: what is wrong``. The reader never raises on
-  the content of a line; it raises ``OSError`` only when the file cannot be read.
+  ``CarmenLog.skipped`` under their type name, with one warning per type naming its first line.
+* A malformed line (wrong number of fields for its beam count, a ``ROBOTLASER1`` beam count
+  that does not fill the header's fov, a non-numeric field, NaN/inf, a negative range) is
+  skipped, counted under ``"malformed <TYPE>"`` and reported in ``CarmenLog.warnings`` as
+  ``file:line: TYPE: what is wrong`` (``io.skips``). The reader never raises on the content of
+  a line; it raises ``OSError`` only when the file cannot be read.
 * Ranges ``>= no_return_m`` (CARMEN writes 81.83 / 81.91 m for "no echo") become ``+inf``
   (REP 117). For ``ROBOTLASER1`` the threshold is ``min(max_range, no_return_m)``.
 * Timestamps that repeat or step back (the Intel logs have both) are kept in file order; the
@@ -56,6 +57,8 @@ from decimal import Decimal, InvalidOperation
 
 import numpy as np
 
+from .skips import SkipLog
+
 __all__ = [
     'CarmenLog',
     'CarmenOdom',
@@ -65,8 +68,8 @@ __all__ = [
     'stamp_str_to_ns',
 ]
 
-#: Per-line warnings kept in full; beyond this only the counts in ``skipped`` grow.
-MAX_LINE_WARNINGS = 100
+#: The message types read; every other type is skipped (counted, one warning per type).
+USED_TYPES = ('FLASER', 'ROBOTLASER1', 'ODOM')
 
 
 @dataclass
@@ -236,7 +239,7 @@ def _parse_robotlaser1(tok: list[str], line_no: int, no_return_m: float) -> Carm
     if len(tok) < 9:
         raise _BadLine(f'too few fields ({len(tok)})')
     head = _floats(tok[2:7], 'header field')
-    start_angle, _fov, res, max_range, _acc = (float(v) for v in head)
+    start_angle, fov, res, max_range, _acc = (float(v) for v in head)
     n = _int(tok[8], 'beam count')
     if n < 1 or len(tok) < 9 + n + 1:
         raise _BadLine(f'{n} beams announced but only {len(tok)} fields')
@@ -247,6 +250,8 @@ def _parse_robotlaser1(tok: list[str], line_no: int, no_return_m: float) -> Carm
                        f'got {len(tok)}')
     if not res > 0.0 or not max_range > 0.0:
         raise _BadLine(f'angular_res {res} and max_range {max_range} must be > 0')
+    if min(abs(fov - n * res), abs(fov - (n - 1) * res)) > 0.5 * res:
+        raise _BadLine(f'{n} beams at angular_res {res} do not cover the header fov {fov}')
     raw = _floats(tok[9:9 + n], 'range')
     rest = _floats(tok[10 + n + m:10 + n + m + 11], 'pose/velocity')
     stamp_s, stamp_ns = _stamp(tok[10 + n + m + 11])
@@ -287,17 +292,15 @@ def read_carmen(path: str | os.PathLike, no_return_m: float = 80.0) -> CarmenLog
         raise ValueError(f'no_return_m must be > 0, got {no_return_m}')
     log = CarmenLog(path=str(path))
     name = os.path.basename(str(path))
-    n_line_warnings = 0
-
-    def skip(reason: str) -> None:
-        log.skipped[reason] = log.skipped.get(reason, 0) + 1
+    bad = SkipLog(log.skipped, log.warnings)
+    unused: dict[str, int] = {}  # type -> first line
 
     with open(path, encoding='utf-8', errors='replace') as fh:
         for line_no, line in enumerate(fh, start=1):
             tok = line.split()
             if not tok or tok[0].startswith('#'):
                 continue
-            kind = tok[0]
+            kind = tok[0] if tok[0].isprintable() else ascii(tok[0])  # binary junk, named safely
             try:
                 if kind == 'FLASER':
                     log.scans.append(_parse_flaser(tok, line_no, no_return_m))
@@ -306,16 +309,14 @@ def read_carmen(path: str | os.PathLike, no_return_m: float = 80.0) -> CarmenLog
                 elif kind == 'ODOM':
                     log.odoms.append(_parse_odom(tok, line_no))
                 else:
-                    skip(kind)
+                    unused.setdefault(kind, line_no)
+                    log.skipped[kind] = log.skipped.get(kind, 0) + 1
             except _BadLine as exc:
-                skip(f'malformed {kind}')
-                n_line_warnings += 1
-                if n_line_warnings <= MAX_LINE_WARNINGS:
-                    log.warnings.append(f'{name}:{line_no}: {kind}: {exc}; line skipped')
-
-    if n_line_warnings > MAX_LINE_WARNINGS:
-        log.warnings.append(f'{name}: {n_line_warnings - MAX_LINE_WARNINGS} more malformed '
-                            'lines not listed')
+                bad.skip(name, line_no, f'{kind}: {exc}', key=f'malformed {kind}')
+    bad.finish()
+    for kind, first in unused.items():
+        log.warnings.append(f'{name}:{first}: message type {kind} is not read (only '
+                            f'{", ".join(USED_TYPES)}); its {log.skipped[kind]} lines skipped')
 
     kinds = {s.kind for s in log.scans}
     if len(kinds) > 1:

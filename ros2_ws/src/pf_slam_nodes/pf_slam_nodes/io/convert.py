@@ -53,9 +53,9 @@ class ConvertReport:
     """What a conversion wrote.
 
     ``counts``: messages per topic; ``skipped``: input lines skipped per reason; ``warnings``:
-    human-readable lines from the reader and the converter; ``retimed``: messages whose record
-    time was moved forward (header stamp kept); ``start_ns`` / ``end_ns``: first / last record
-    time; ``out_bag``, ``storage``, ``source``.
+    human-readable lines from the reader and the converter; ``retimed``: log lines whose
+    messages' record time was moved forward (header stamps kept); ``start_ns`` / ``end_ns``:
+    first / last record time; ``out_bag``, ``storage``, ``source``.
     """
 
     source: str
@@ -78,10 +78,10 @@ class ConvertReport:
         lines = [f'{self.source} -> {self.out_bag} ({self.storage}, {self.duration_s:.1f} s)']
         lines += [f'  {t}: {n}' for t, n in sorted(self.counts.items())]
         if self.skipped:
-            lines.append('  skipped: ' + ', '.join(f'{k} {v}' for k, v in
-                                                  sorted(self.skipped.items())))
+            lines.append(f'  skipped {sum(self.skipped.values())}: ' + ', '.join(
+                f'{k} {v}' for k, v in sorted(self.skipped.items())))
         if self.retimed:
-            lines.append(f'  record time moved forward for {self.retimed} messages '
+            lines.append(f'  record time moved forward for {self.retimed} log lines\' messages '
                          '(log time repeats or steps back; header stamps kept)')
         lines += [f'  warning: {w}' for w in self.warnings]
         return '\n'.join(lines)

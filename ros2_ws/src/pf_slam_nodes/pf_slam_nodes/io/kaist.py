@@ -47,7 +47,8 @@ Bad input
 A CSV row with the wrong column count, a non-numeric or non-finite value, or a timestamp that
 does not increase (repeat or step back, compared with the last kept row) is skipped, counted in
 ``ConvertReport.skipped`` under ``'<file>: <reason>'`` and named ``<file>:<line>`` in
-``ConvertReport.warnings`` (the first ``MAX_LINE_WARNINGS`` per file, then one summary line).
+``ConvertReport.warnings`` (``io.skips``: the first ``MAX_LINE_WARNINGS`` per file, then one
+summary line).
 An unreadable PNG (truncated, not 8-bit single-channel, wrong size) is skipped the same way
 with the image and its camera_info. A missing parameter or ``sensor_data`` file raises
 ``ValueError`` naming the path.
@@ -71,6 +72,7 @@ from . import calib
 from .bag import TYPESTORE, BagWriter, camera_info, image, joint_state_wheels, laser_scan
 from .bag import make_header, open_writer, tf_static
 from .convert import TOPIC_ENCODERS, TOPIC_SCAN, TOPIC_TF_STATIC, ConvertReport
+from .skips import SkipLog
 
 __all__ = [
     'BAYER_ENCODING',
@@ -103,8 +105,6 @@ PARAM_FILES = ('EncoderParameter.txt', 'Vehicle2FOG.txt', 'Vehicle2Lidar.txt',
 SENSOR_FILES = ('encoder.csv', 'fog.csv', 'lidar.csv')
 IMAGE_DIRS = {'left': 'stereo_images/stereo_left', 'right': 'stereo_images/stereo_right'}
 
-#: Per-file row warnings kept in full; beyond this only the counts in ``skipped`` grow.
-MAX_LINE_WARNINGS = 100
 #: Largest accepted difference between the file's RPY and its R (max abs element).
 RPY_TOL = 1e-3
 
@@ -268,20 +268,15 @@ def _is_header(tok: str) -> bool:
 class _Rows:
     """Rows ``(line_no, stamp_ns, values (n_values,) float64)`` of one sensor CSV, streamed.
 
-    Bad rows are skipped and reported into ``report``; see the module docstring.
+    Bad rows are skipped and reported into ``skips``; see the module docstring.
     """
 
-    def __init__(self, path: Path, n_values: int, report: ConvertReport) -> None:
-        self.path, self.n_values, self.report = path, n_values, report
-        self.name = path.name
-        self.n_bad = 0
+    def __init__(self, path: Path, n_values: int, skips: SkipLog) -> None:
+        self.path, self.n_values, self.skips = path, n_values, skips
 
     def _bad(self, line_no: int, reason: str) -> None:
-        key = f'{self.name}: {reason}'
-        self.report.skipped[key] = self.report.skipped.get(key, 0) + 1
-        self.n_bad += 1
-        if self.n_bad <= MAX_LINE_WARNINGS:
-            self.report.warnings.append(f'{self.path}:{line_no}: {reason}; row skipped')
+        self.skips.skip(str(self.path), line_no, reason, key=f'{self.path.name}: {reason}',
+                        what='row')
 
     def __iter__(self) -> Iterator[tuple[int, int, np.ndarray]]:
         last = -1
@@ -322,9 +317,6 @@ class _Rows:
                     continue
                 last = stamp
                 yield line_no, stamp, vals
-        if self.n_bad > MAX_LINE_WARNINGS:
-            self.report.warnings.append(
-                f'{self.path}: {self.n_bad - MAX_LINE_WARNINGS} more bad rows not listed')
 
 
 # Each stream yields (stamp_ns, priority, write); write(bag) writes that event (False: skipped).
@@ -383,7 +375,7 @@ def _scan_events(rows: _Rows, angle_min: float, angle_increment: float,
 # images
 
 
-def _image_files(folder: Path, report: ConvertReport) -> list[tuple[int, Path]]:
+def _image_files(folder: Path, skips: SkipLog) -> list[tuple[int, Path]]:
     """``(stamp_ns, path)`` of the ``*.png`` in ``folder``, sorted by stamp."""
     out = []
     for f in folder.glob('*.png'):
@@ -392,9 +384,8 @@ def _image_files(folder: Path, report: ConvertReport) -> list[tuple[int, Path]]:
         except ValueError:
             stamp = -1
         if stamp < 0:
-            key = f'{folder.name}: file name not a timestamp'
-            report.skipped[key] = report.skipped.get(key, 0) + 1
-            report.warnings.append(f'{f}: file name is not a ns timestamp; image skipped')
+            skips.skip(str(f), None, 'file name is not a ns timestamp',
+                       key=f'{folder.name}: file name not a timestamp', what='image')
             continue
         out.append((stamp, f))
     out.sort()
@@ -402,7 +393,7 @@ def _image_files(folder: Path, report: ConvertReport) -> list[tuple[int, Path]]:
 
 
 def _image_events(cam: str, files: list[tuple[int, Path]], cam_info: dict,
-                  report: ConvertReport) -> Iterator[_Event]:
+                  skips: SkipLog) -> Iterator[_Event]:
     import cv2  # local: OpenCV is only needed for images
 
     prio = _PRIO_LEFT if cam == 'left' else _PRIO_RIGHT
@@ -425,9 +416,7 @@ def _image_events(cam: str, files: list[tuple[int, Path]], cam_info: dict,
             why = f'size {img.shape[1]}x{img.shape[0]} differs from the camera YAML ' \
                   f'{shape[1]}x{shape[0]}'
         if why is not None:
-            key = f'{folder}: bad image'
-            report.skipped[key] = report.skipped.get(key, 0) + 1
-            report.warnings.append(f'{path}: {why}; image skipped')
+            skips.skip(str(path), None, why, key=f'{folder}: bad image', what='image')
             return False
         bag.write(TOPIC_IMAGE[cam], stamp, image(stamp, frame, img, BAYER_ENCODING))
         bag.write(TOPIC_CAMERA_INFO[cam], stamp, camera_info(
@@ -482,6 +471,7 @@ def convert_kaist(dataset_dir: str | os.PathLike, out_bag: str | os.PathLike,
     root = layout.root
     param, sensors = root / 'param', root / 'sensor_data'
     report = ConvertReport(source=str(root), out_bag=str(out_bag), storage=storage)
+    skips = SkipLog(report.skipped, report.warnings)
 
     enc = calib.parse_encoder_params(param / 'EncoderParameter.txt')
     lid = calib.parse_lidar_params(param / 'lidar_param.txt')
@@ -496,9 +486,9 @@ def convert_kaist(dataset_dir: str | os.PathLike, out_bag: str | os.PathLike,
         register_fog_batch()
 
     streams = [
-        _encoder_events(_Rows(sensors / 'encoder.csv', 2, report), enc['resolution']),
-        _fog_events(_Rows(sensors / 'fog.csv', 3, report), fog_format, int(fog_batch)),
-        _scan_events(_Rows(sensors / 'lidar.csv', n_beams, report),
+        _encoder_events(_Rows(sensors / 'encoder.csv', 2, skips), enc['resolution']),
+        _fog_events(_Rows(sensors / 'fog.csv', 3, skips), fog_format, int(fog_batch)),
+        _scan_events(_Rows(sensors / 'lidar.csv', n_beams, skips),
                      math.radians(lid['start_deg']), math.radians(inc_deg), lid['max_range_m']),
     ]
     cams: dict[str, dict] = {}
@@ -509,8 +499,8 @@ def convert_kaist(dataset_dir: str | os.PathLike, out_bag: str | os.PathLike,
                 report.warnings.append(f'{root / rel}: missing; no {cam} images written')
                 continue
             cams[cam] = calib.read_camera_yaml(param / f'{cam}_camera.yaml')
-            files[cam] = _image_files(root / rel, report)
-            streams.append(_image_events(cam, files[cam], cams[cam], report))
+            files[cam] = _image_files(root / rel, skips)
+            streams.append(_image_events(cam, files[cam], cams[cam], skips))
         if len(files) == 2:
             lone = {s for s, _ in files['left']} ^ {s for s, _ in files['right']}
             if lone:
@@ -544,5 +534,6 @@ def convert_kaist(dataset_dir: str | os.PathLike, out_bag: str | os.PathLike,
             if write(bag) is not False:  # False: an image skipped
                 last = stamp
         report.counts = dict(bag.counts)
+    skips.finish()
     report.start_ns, report.end_ns = t0, last
     return report

@@ -30,6 +30,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .skips import SkipLog
+
 __all__ = [
     'MINES_ANGLE_INCREMENT',
     'MINES_ANGLE_MIN',
@@ -42,7 +44,6 @@ N_BEAMS = 682
 FIRST_RANGE_FIELD = 24
 MINES_ANGLE_INCREMENT = 2.0 * math.pi / 1024.0
 MINES_ANGLE_MIN = (44 - 384) * MINES_ANGLE_INCREMENT
-MAX_LINE_WARNINGS = 100
 
 
 @dataclass
@@ -130,7 +131,7 @@ def read_mines(path: str | os.PathLike, ticks_per_rev: int = 2000,
     line_nos: list[int] = []
     skipped: dict[str, int] = {}
     warnings: list[str] = []
-    n_bad = 0
+    bad = SkipLog(skipped, warnings)
     with open(path, encoding='utf-8', errors='replace') as fh:
         for line_no, line in enumerate(fh, start=1):
             tok = line.split()
@@ -150,15 +151,11 @@ def read_mines(path: str | os.PathLike, ticks_per_rev: int = 2000,
                     elif row[0] != int(row[0]) or row[2] != int(row[2]) or row[3] != int(row[3]):
                         why = 'timestamp or ticks not integers'
             if why is not None:
-                skipped['malformed'] = skipped.get('malformed', 0) + 1
-                n_bad += 1
-                if n_bad <= MAX_LINE_WARNINGS:
-                    warnings.append(f'{base}:{line_no}: {why}; line skipped')
+                bad.skip(base, line_no, why, key='malformed')
                 continue
             rows.append(row)
             line_nos.append(line_no)
-    if n_bad > MAX_LINE_WARNINGS:
-        warnings.append(f'{base}: {n_bad - MAX_LINE_WARNINGS} more malformed lines not listed')
+    bad.finish()
 
     data = np.array(rows, dtype=np.float64).reshape(-1, N_FIELDS)
     stamps_us = data[:, 0].astype(np.int64)
@@ -167,8 +164,10 @@ def read_mines(path: str | os.PathLike, ticks_per_rev: int = 2000,
     ranges[mm < range_min_m * 1000.0] = np.inf
     d = np.diff(stamps_us)
     if np.any(d <= 0):
+        first = line_nos[int(np.flatnonzero(d <= 0)[0]) + 1]
         warnings.append(f'{base}: {int(np.count_nonzero(d == 0))} timestamps repeat and '
-                        f'{int(np.count_nonzero(d < 0))} step back; kept in file order')
+                        f'{int(np.count_nonzero(d < 0))} step back (first at line {first}); '
+                        'kept in file order')
     return MinesLog(
         stamps_s=stamps_us.astype(np.float64) * 1e-6, stamps_us=stamps_us,
         left_ticks=data[:, 2].astype(np.int64), right_ticks=data[:, 3].astype(np.int64),

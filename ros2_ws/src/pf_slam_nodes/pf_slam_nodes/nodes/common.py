@@ -2,11 +2,15 @@
 from __future__ import annotations
 
 import dataclasses
+import math
+import os
 import re
+import signal
 import sys
 from collections import deque
 from typing import Any, Callable, TypeVar
 
+import numpy as np
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -48,6 +52,9 @@ PARAM_DOCS: dict[str, str] = {
     "wheels.left_diameter_m": "left wheel diameter, odometry_source encoders (m)",
     "wheels.right_diameter_m": "right wheel diameter, odometry_source encoders (m)",
     "wheels.base_m": "distance between the wheels, odometry_source encoders (m)",
+    "wheels.max_speed_mps": "a wheel step faster than this is an encoder counter jump: its motion is "
+                            "discarded and counted (m/s)",
+    "time_gap_s": "scan stamps stepping forward by more than this are counted as a time gap (s)",
     "publish_odom_tf": "publish odom -> base_frame on /tf at every scan (off when the bag carries its own /tf)",
     "publish_sensor_tf": "publish base_frame -> the scan's frame on /tf_static from filter.sensor_offset_* / "
                          "laser.extrinsic (off when the bag's /tf_static has it)",
@@ -170,36 +177,113 @@ def announce_when_matched(node: Node, needs: list[tuple[Any, int]], period_s: fl
 
 
 class ScanQueue:
-    """Serialized scans in arrival order, numbered from 0; a scan is deserialized only when it
-    is taken. The correlator and the mapper need only the scans that are corrected (the car's
-    lidar runs at 100 Hz, corrections every ~2 m), so most scans are dropped unread."""
+    """Serialized scans in arrival order; a scan is deserialized only when it is taken. The
+    correlator and the mapper need only the scans that are corrected (the car's lidar runs at
+    100 Hz, corrections every ~2 m), so most scans are dropped unread.
+
+    Scans are asked for by the predictor's number (``scan_index``) and stamp. Without losses the
+    n-th scan here is the predictor's n-th; a replay faster than the graph can overflow the
+    queues, and then the nodes may lose different scans: the stamp finds the right one (the
+    nearest to where it is expected), or tells that it was lost here (a later-stamped scan has
+    arrived and none matches), so a correction never uses another scan than its own.
+    """
 
     def __init__(self) -> None:
         self._raw: deque[bytes] = deque()
-        self._first = 0  # index of _raw[0]
+        self._first = 0  # arrival number of _raw[0]
+        self._shift = 0  # predictor's number - arrival number (0 unless scans were lost)
         self.received = 0
+        self.lost = 0
 
     def append(self, raw: bytes) -> None:
         self._raw.append(raw)
         self.received += 1
 
-    def has(self, index: int) -> bool:
-        return index < self.received
+    def _stamp(self, pos: int) -> int:
+        from ..ros.convert import stamp_ns_from_cdr
+        return stamp_ns_from_cdr(self._raw[pos])
 
-    def take(self, index: int):
-        """Deserialize scan `index` (a LaserScan); scans before it are forgotten."""
+    def _find(self, index: int, stamp_ns: int) -> int | None:
+        """Queue position of the scan (index, stamp), -1 if it was lost here, None: not yet."""
+        expected = index - self._shift - self._first
+        if expected >= len(self._raw):
+            return None  # not here yet (if scans were lost here: resolved as later ones arrive)
+        if expected >= 0 and self._stamp(expected) == stamp_ns:
+            return expected  # without losses: always here, one stamp read
+        stamps = [self._stamp(p) for p in range(len(self._raw))]
+        hits = [p for p, s in enumerate(stamps) if s == stamp_ns]
+        if hits:
+            return min(hits, key=lambda p: abs(p - expected))
+        return -1 if any(s > stamp_ns for s in stamps) else None
+
+    def has(self, index: int, stamp_ns: int) -> bool:
+        """True when :meth:`take` can answer: the scan is here, or it is known lost."""
+        return self._find(index, stamp_ns) is not None
+
+    def take(self, index: int, stamp_ns: int):
+        """Deserialize scan (index, stamp) (a LaserScan), or None if it was lost here; the scans
+        before it are forgotten."""
         from rclpy.serialization import deserialize_message
         from sensor_msgs.msg import LaserScan
-        if not self._first <= index < self.received:
+        pos = self._find(index, stamp_ns)
+        if pos is None:
             raise IndexError(f"scan {index} is not queued (have {self._first}..{self.received - 1})")
-        for _ in range(index - self._first):
+        if pos < 0:
+            self.lost += 1
+            return None
+        for _ in range(pos):
             self._raw.popleft()
-        self._first = index + 1
+        self._first += pos + 1
+        self._shift = index - (self._first - 1)
         return deserialize_message(self._raw.popleft(), LaserScan)
 
 
+def scan_fields(scan) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """(ranges, angles, range_min, range_max) of a taken LaserScan; no beams for a lost one
+    (None): the stages then correct and map nothing, and every set still gets its answer."""
+    if scan is None:
+        return np.empty(0), np.empty(0), 0.0, math.inf
+    from ..ros.convert import scan_arrays
+    return (*scan_arrays(scan), float(scan.range_min), float(scan.range_max))
+
+
+def status_publisher(node: Node, status: Callable[[], dict]) -> Callable[[], None]:
+    """The node's pf_slam/status (latched JSON, for the run's summary): ``status()`` is published
+    now, then at most once a second when it changed; returns the function that publishes it at
+    once (only if changed), e.g. at the end of the run."""
+    import json
+
+    from std_msgs.msg import String
+
+    from ..ros import qos, topics
+    pub = node.create_publisher(String, topics.STATUS, qos.latched())
+    sent: list[dict] = []
+
+    def publish() -> None:
+        s = {"node": node.get_name(), **status()}
+        if not sent or s != sent[0]:
+            pub.publish(String(data=json.dumps(s)))
+            sent[:] = [s]
+    node.create_timer(1.0, publish)
+    publish()
+    return publish
+
+
+def die_with_parent() -> None:
+    """Started by `pf-slam run --processes multi` (PF_SLAM_PARENT_PID set): get SIGTERM when that
+    process ends, however it ends (Linux prctl PR_SET_PDEATHSIG), so no node outlives its run."""
+    parent = os.environ.get("PF_SLAM_PARENT_PID")
+    if not parent or not sys.platform.startswith("linux"):
+        return
+    import ctypes
+    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # 1 = PR_SET_PDEATHSIG
+    if os.getppid() != int(parent):  # the parent ended before prctl took effect
+        sys.exit(1)
+
+
 def run_node(factory: Callable[..., Node], args: list[str] | None = None) -> int:
-    """`main()` of a node console script: init, spin until Ctrl-C / shutdown, clean up."""
+    """`main()` of a node console script: init, spin until Ctrl-C / SIGTERM / shutdown, clean up."""
+    die_with_parent()
     rclpy.init(args=args)
     node = None
     try:

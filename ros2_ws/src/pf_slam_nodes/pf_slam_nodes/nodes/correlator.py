@@ -24,7 +24,8 @@ from sensor_msgs.msg import LaserScan
 from ..core.motion import compose
 from ..core.stages import CorrectionStage, MapPatch
 from ..ros import convert, qos, topics
-from .common import ScanQueue, announce_when_matched, declare_config, param, run_node
+from .common import (ScanQueue, announce_when_matched, declare_config, param, run_node, scan_fields,
+                     status_publisher)
 
 
 class Correlator(Node):
@@ -45,6 +46,7 @@ class Correlator(Node):
         self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline(), raw=True)
         self.create_subscription(ParticleArray, topics.PARTICLES_PREDICTED, self._on_predicted, qos.pipeline())
         self.create_subscription(OccupancyGrid, topics.GRID, self._on_grid, qos.pipeline(10))
+        status_publisher(self, lambda: {"faults": {"scans_lost_correlator": self.scans.lost}})
 
     def _on_scan(self, raw: bytes) -> None:
         self.scans.append(raw)
@@ -62,18 +64,20 @@ class Correlator(Node):
 
     def _drain(self) -> None:
         # scans and sets both arrive in scan order; a set names its scan by index
-        while self.predicted and self.scans.has(self.predicted[0].scan_index):
+        while self.predicted and self.scans.has(self.predicted[0].scan_index,
+                                                convert.stamp_to_ns(self.predicted[0].header.stamp)):
             pa = self.predicted[0]
             if pa.update and self.grids_received < self.corrections_sent:
                 return  # the map of the previous correction is not here yet
             self.predicted.popleft()
-            scan = self.scans.take(pa.scan_index)
-            stamp = convert.stamp_to_ns(scan.header.stamp)
+            stamp = convert.stamp_to_ns(pa.header.stamp)  # the scan's
+            scan = self.scans.take(pa.scan_index, stamp)
+            if scan is None:
+                self.get_logger().warn(f"scan {pa.scan_index} was lost on the way here (a replay faster than "
+                                       "the graph): its set is not corrected", throttle_duration_sec=5.0)
             particles, log_w = convert.msg_to_particles(pa)
             if pa.update:
-                ranges, angles = convert.scan_arrays(scan)
-                res = self.stage.correct(particles, log_w, ranges, angles,
-                                         float(scan.range_min), float(scan.range_max))
+                res = self.stage.correct(particles, log_w, *scan_fields(scan))
                 particles, log_w, pose = res.particles, res.log_weights, res.pose
                 self.corrections_sent += 1
             else:

@@ -28,7 +28,8 @@ from ..core.stages import MappingStage
 from ..io.calib import matrix_to_quat
 from ..io.mapfile import trinary
 from ..ros import convert, qos, topics
-from .common import ScanQueue, announce_when_matched, declare_config, param, run_node
+from .common import (ScanQueue, announce_when_matched, declare_config, param, run_node, scan_fields,
+                     status_publisher)
 
 
 class Mapper(Node):
@@ -61,6 +62,7 @@ class Mapper(Node):
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
         self.create_timer(period, self.publish_map)
+        status_publisher(self, lambda: {"faults": {"scans_lost_mapper": self.scans.lost}})
 
     def _on_scan(self, raw: bytes) -> None:
         self.scans.append(raw)
@@ -75,17 +77,19 @@ class Mapper(Node):
         self._maybe_finish()
 
     def _drain(self) -> None:
-        while self.updates and self.scans.has(self.updates[0].scan_index):
+        while self.updates and self.scans.has(self.updates[0].scan_index,
+                                              convert.stamp_to_ns(self.updates[0].header.stamp)):
             pa = self.updates.popleft()
-            scan = self.scans.take(pa.scan_index)
-            stamp = convert.stamp_to_ns(scan.header.stamp)
+            stamp = convert.stamp_to_ns(pa.header.stamp)  # the scan's
+            scan = self.scans.take(pa.scan_index, stamp)
+            if scan is None:
+                self.get_logger().warn(f"scan {pa.scan_index} was lost on the way here (a replay faster than "
+                                       "the graph): not mapped", throttle_duration_sec=5.0)
             pose = np.asarray(pa.pose, dtype=np.float64)
-            if self.pub_tf_static is not None:
+            if self.pub_tf_static is not None and scan is not None:
                 self._publish_sensor_tf(scan.header.frame_id, stamp)
             if pa.update:
-                ranges, angles = convert.scan_arrays(scan)
-                patch = self.stage.integrate(pose, ranges, angles, float(scan.range_min),
-                                             float(scan.range_max))
+                patch = self.stage.integrate(pose, *scan_fields(scan))
                 self.pub_grid.publish(convert.grid_to_msg(patch.occupancy, patch.resolution,
                                                           patch.origin, stamp, self.map_frame))
             map_to_odom = compose(pose, relative_pose(np.asarray(pa.odom_pose), np.zeros(3)))

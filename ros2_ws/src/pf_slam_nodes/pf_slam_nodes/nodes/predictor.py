@@ -19,6 +19,13 @@ only the next scan that needs a correction waits. So with one process per node t
 the predictor keep going while the correlator works. The last scan of the bag
 is always sent on particles/predicted (update=false if it is a pass-through) so the correlator
 and the mapper see the end of the run.
+
+Bad input is checked here, where every scan and odometry message passes (core/faults.py): NaN or
+negative ranges, a beam count that disagrees with the angles (that scan is posed from odometry,
+not corrected with), scan stamps stepping back or jumping ahead by more than time_gap_s, encoder
+counter jumps (wheels.max_speed_mps), NaN/inf odometry (dropped). Each is logged (throttled, per
+kind) and counted; the counts go out on pf_slam/status (latched JSON, on change at most once a
+second, and once more, "final", when the last scan of the bag is posed) for summary.json.
 """
 from __future__ import annotations
 
@@ -32,12 +39,13 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState, LaserScan
 from tf2_msgs.msg import TFMessage
 
+from ..core.faults import ODOMETRY_NONFINITE, ScanChecks
 from ..core.motion import compose
 from ..core.odometry import GyroBuffer, OdometryBuffer, WheelOdometryIntegrator
 from ..core.stages import PredictionStage
 from ..io.trajectory import quat_to_yaw
 from ..ros import cdr, convert, qos, topics
-from .common import announce_when_matched, declare_config, param, run_node
+from .common import announce_when_matched, declare_config, param, run_node, status_publisher
 
 
 class Predictor(Node):
@@ -49,7 +57,11 @@ class Predictor(Node):
         if source not in ("odom", "encoders"):
             raise ValueError(f"parameter 'odometry_source' must be 'odom' or 'encoders', got {source!r}")
         self.odom = OdometryBuffer(param(self, "odom_sync", "interpolate"))
-        self.scans: deque[tuple[int, int]] = deque()  # (scan_index, stamp_ns)
+        self.scans: deque[tuple[int, int, bool]] = deque()  # (scan_index, stamp_ns, usable)
+        self.checks = ScanChecks(param(self, "time_gap_s", 60.0))
+        self.odometry_nonfinite = 0
+        self.poses_published = 0
+        self._fault_loggers: dict = {}  # one logger per fault kind: each throttled on its own
         self.scan_count = 0
         self.waiting_for: int | None = None  # scan index of the update in flight
         self.odom_received = 0
@@ -77,7 +89,8 @@ class Predictor(Node):
         elif source == "encoders":
             self.wheels = WheelOdometryIntegrator(param(self, "wheels.left_diameter_m", 0.154),
                                                   param(self, "wheels.right_diameter_m", 0.154),
-                                                  param(self, "wheels.base_m", 0.33))
+                                                  param(self, "wheels.base_m", 0.33),
+                                                  param(self, "wheels.max_speed_mps", 50.0))
             self.encoders: deque[tuple[int, float, float]] = deque()
             self.last_encoder_ns: int | None = None
             self.create_subscription(JointState, topics.ENCODERS, self._on_encoders, qos.pipeline(10000),
@@ -96,6 +109,10 @@ class Predictor(Node):
             self.create_subscription(FogBatch, topics.FOG, self._on_fog_batch, qos.pipeline(10000), raw=True)
         elif fog == "vector3":
             self.create_subscription(Vector3Stamped, topics.FOG, self._on_fog_vector, qos.pipeline(100000))
+        # "final" once the last scan of the bag is posed: the run's summary waits for it
+        self._publish_status = status_publisher(self, lambda: {
+            "final": self.poses_published == self.scans_expected, "scans": self.scan_count,
+            "faults": self.faults()})
 
     def _init_odom_tf(self) -> None:
         """odom -> base_link on /tf, one per scan, as bytes (the car's lidar runs at 100 Hz)."""
@@ -111,10 +128,10 @@ class Predictor(Node):
     # ------------------------------------------------------------------ inputs
     def _on_odom(self, msg: Odometry) -> None:
         o = msg.pose.pose.orientation
-        yaw = float(quat_to_yaw(o.x, o.y, o.z, o.w))
-        self.odom.add(convert.stamp_to_ns(msg.header.stamp),
-                      np.array([msg.pose.pose.position.x, msg.pose.pose.position.y, yaw]))
+        pose = np.array([msg.pose.pose.position.x, msg.pose.pose.position.y, float(quat_to_yaw(o.x, o.y, o.z, o.w))])
         self.odom_received += 1
+        if self._finite(pose, "odom"):
+            self.odom.add(convert.stamp_to_ns(msg.header.stamp), pose)
         self._drain()
 
     def _on_encoders(self, raw: bytes) -> None:
@@ -125,13 +142,16 @@ class Predictor(Node):
                                        throttle_duration_sec=5.0)
             self.odom_received += 1  # counted: the end-of-stream count must still match
             return
+        if not self._finite(position[:2], "encoders"):
+            self.odom_received += 1
+            return
         self.encoders.append((stamp, float(position[0]), float(position[1])))
         self._drain()
 
     def _on_fog_batch(self, raw: bytes) -> None:
         stamps, yaw = self._parse(cdr.fog_batch_yaw, raw, "fog")
         self.fog_received += 1  # counted even if bad: the end-of-stream count must still match
-        if stamps is not None:
+        if stamps is not None and self._finite(yaw, "fog"):
             self.gyro.add(stamps, yaw)
         self._drain()
 
@@ -143,8 +163,17 @@ class Predictor(Node):
             self.get_logger().error(f"{topic}: message dropped: {exc}", throttle_duration_sec=5.0)
             return None, None
 
+    def _finite(self, values: np.ndarray, topic: str) -> bool:
+        """False (message dropped, counted) when odometry holds NaN or inf: it would poison the pose."""
+        if np.isfinite(values).all():
+            return True
+        self.odometry_nonfinite += 1
+        self._fault(ODOMETRY_NONFINITE, f"{topic}: message with NaN/inf values dropped")
+        return False
+
     def _on_fog_vector(self, msg: Vector3Stamped) -> None:
-        self.gyro.add([convert.stamp_to_ns(msg.header.stamp)], [msg.vector.z])
+        if self._finite(np.array([msg.vector.z]), "fog"):
+            self.gyro.add([convert.stamp_to_ns(msg.header.stamp)], [msg.vector.z])
         self.fog_received += 1
         self._drain()
 
@@ -160,14 +189,44 @@ class Predictor(Node):
                     self.wheels.add_gyro(self.gyro.yaw_between(self.last_encoder_ns, t))
                     self.gyro.trim(self.last_encoder_ns)
             self.encoders.popleft()
-            self.odom.add(t, self.wheels.step(left, right))
+            jumps = self.wheels.jumps
+            dt = None if self.last_encoder_ns is None else (t - self.last_encoder_ns) / 1e9
+            self.odom.add(t, self.wheels.step(left, right, dt))
+            if self.wheels.jumps > jumps:
+                self._fault("encoder_jump", f"encoders: wheel angles jumped by more than the wheels can turn "
+                            f"in {dt:.3f} s at wheels.max_speed_mps; that step's wheel motion discarded")
             self.last_encoder_ns = t
             self.odom_received += 1
 
     def _on_scan(self, raw: bytes) -> None:
-        self.scans.append((self.scan_count, convert.stamp_ns_from_cdr(raw)))
+        try:
+            stamp, (a_min, a_max, a_inc), ranges = cdr.laser_scan_ranges(raw)
+            usable, faults = self.checks.check(stamp, ranges, a_min, a_max, a_inc)
+        except ValueError as exc:
+            stamp, usable, faults = self.checks.last_stamp_ns or 0, False, self.checks.unreadable(exc)
+        for kind, text in faults:
+            self._fault(kind, f"scan {self.scan_count}: {text}")
+        self.scans.append((self.scan_count, stamp, usable))
         self.scan_count += 1
         self._drain()
+
+    # ------------------------------------------------------------------ faults
+    def _fault(self, kind: str, text: str) -> None:
+        """Log a fault, throttled per kind (rclpy throttles per logger and call site)."""
+        if kind not in self._fault_loggers:
+            self._fault_loggers[kind] = self.get_logger().get_child(kind)
+        self._fault_loggers[kind].warn(text, throttle_duration_sec=5.0)
+
+    def faults(self) -> dict[str, int]:
+        """Every fault counter of the run so far (summary.json "faults")."""
+        out = dict(self.checks.counts, odometry_nonfinite=self.odometry_nonfinite,
+                   odom_time_backwards=self.odom.backward_steps, odom_missing=self.odom.missing)
+        if hasattr(self, "wheels"):
+            out["encoder_jump"] = self.wheels.jumps
+        if self.gyro is not None:
+            out["fog_out_of_order"] = self.gyro.out_of_order
+        return out
+
 
     def _on_updated(self, msg: ParticleArray) -> None:
         if msg.update and msg.scan_index == self.waiting_for:
@@ -184,6 +243,8 @@ class Predictor(Node):
         self.odom_expected = int(counts.get(self.odom_topic, 0))
         self.fog_expected = int(counts.get(self.fog_topic, 0))
         self.scans_expected = int(counts.get(self.scan_topic, 0))
+        if self.poses_published == self.scans_expected:
+            self._publish_status()
         self._drain()
 
     # ------------------------------------------------------------------ the work
@@ -191,7 +252,7 @@ class Predictor(Node):
         if hasattr(self, "encoders"):
             self._integrate_encoders()
         while self.scans:
-            index, stamp = self.scans[0]
+            index, stamp, usable = self.scans[0]
             # a scan whose exact odometry never comes must not block the ones behind it
             # end of stream: every odometry message of the bag is here, none will follow
             final = (self.odom_expected is not None and self.odom_received >= self.odom_expected) or (
@@ -205,7 +266,7 @@ class Predictor(Node):
                 if odom is None:
                     break
                 update, delta = self.stage.gate(odom)
-                if update:
+                if update and usable:
                     self.blocked = index  # decided: no need to look again on every message
                     break
                 self.odom.lookup(stamp, final=final)  # consume what peek saw
@@ -218,11 +279,14 @@ class Predictor(Node):
                 break
             self.scans.popleft()
             self._publish_odom_tf(odom, stamp)
-            self._predict(index, stamp, odom)
+            self._predict(index, stamp, odom, usable)
         self.odom.trim()
         self._maybe_send_end()
 
-    def _predict(self, index: int, stamp: int, odom: np.ndarray) -> None:
+    def _predict(self, index: int, stamp: int, odom: np.ndarray, usable: bool = True) -> None:
+        if not usable:  # a scan the correlator cannot use: posed from odometry
+            self._pass_through(index, stamp, odom, self.stage.gate(odom)[1])
+            return
         update, delta = self.stage.predict(odom)
         if update:
             self.pub.publish(convert.particles_to_msg(
@@ -238,6 +302,9 @@ class Predictor(Node):
 
     def _publish_pose(self, pose: np.ndarray, stamp: int) -> None:
         self.pub_pose.publish(self.pose_cdr.pack(pose, stamp))
+        self.poses_published += 1
+        if self.poses_published == self.scans_expected:
+            self._publish_status()
 
     def _maybe_send_end(self) -> None:
         """Once the last scan of the bag is posed as a pass-through, send it on as the end of

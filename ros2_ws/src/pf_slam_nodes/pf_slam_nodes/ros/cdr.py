@@ -71,14 +71,15 @@ class CdrReader:
         return stamp
 
     def array(self, dtype: str) -> np.ndarray:
-        """A sequence of a 8-byte primitive (``'f8'`` or ``'i8'``) as a read-only view."""
+        """A sequence of a numeric primitive (``'f8'``, ``'i8'``, ``'f4'``) as a read-only view."""
         n = self.u32()
         if n == 0:
             return np.empty(0, dtype=dtype)
-        self._align(8)
-        self._need(8 * n)
+        size = np.dtype(dtype).itemsize
+        self._align(size)
+        self._need(size * n)
         out = np.frombuffer(self.raw, dtype=np.dtype(dtype).newbyteorder(self.end), count=n, offset=self.pos)
-        self.pos += 8 * n
+        self.pos += size * n
         return out
 
 
@@ -89,6 +90,18 @@ def joint_state_positions(raw: bytes) -> tuple[int, np.ndarray]:
     for _ in range(r.u32()):  # name[]
         r.skip_string()
     return stamp, r.array("f8")
+
+
+def laser_scan_ranges(raw: bytes) -> tuple[int, tuple[float, float, float], np.ndarray]:
+    """sensor_msgs/LaserScan bytes -> (stamp ns, (angle_min, angle_max, angle_increment),
+    ranges (B,) float32 view); the rest of the message is not read."""
+    r = CdrReader(raw, "sensor_msgs/LaserScan")
+    stamp = r.header()
+    r._align(4)
+    r._need(28)  # angle_min, angle_max, angle_increment, time_increment, scan_time, range_min, range_max
+    angles = struct.unpack_from(r.end + "3f", raw, r.pos)
+    r.pos += 28
+    return stamp, angles, r.array("f4")
 
 
 def fog_batch_yaw(raw: bytes) -> tuple[np.ndarray, np.ndarray]:

@@ -17,3 +17,4 @@ PATH = "path"
 GRID = "pf_slam/grid"  # mapper -> correlator: the occupancy grid after every integration
 REPLAY_STATUS = "pf_slam/replay_status"  # bag_replay -> all: end of bag
 READY = "pf_slam/ready"  # each stage, once its outputs are matched: the replay may start
+STATUS = "pf_slam/status"  # nodes -> recorder: JSON (fault counters), latched

@@ -1,0 +1,294 @@
+"""Bad input to the converters and to `pf-slam run`: every fault is named (file:line, topic),
+recoverable ones are skipped and counted in the summary, fatal ones exit 1 with one line on
+stderr and no traceback. The CLI cases run the real `pf-slam` command of the venv."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.rosbag2 import Writer
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from pf_slam_nodes.io import skips
+from pf_slam_nodes.io.bag import (TYPESTORE, BagError, bag_info, check_run_inputs, laser_scan,
+                                  odometry, open_writer, read_bag)
+from pf_slam_nodes.io.carmen import read_carmen
+from pf_slam_nodes.io.mines import read_mines
+from pf_slam_nodes.io.skips import SkipLog
+
+PF_SLAM = str(Path(sys.executable).with_name('pf-slam'))
+PARAM = Path(__file__).resolve().parents[2].parent / 'shared' / 'data' / 'kaist_sample' / 'param'
+needs_kaist = pytest.mark.skipif(not PARAM.is_dir(), reason=f'{PARAM} not available')
+
+
+def cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([PF_SLAM, *map(str, args)], capture_output=True, text=True, timeout=120)
+
+
+def assert_fatal(res: subprocess.CompletedProcess, command: str, *needles: str) -> str:
+    """Exit 1, exactly one stderr line `pf-slam COMMAND: error: ...` holding every needle."""
+    assert res.returncode == 1, (res.returncode, res.stdout, res.stderr)
+    assert 'Traceback' not in res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1, res.stderr
+    assert lines[0].startswith(f'pf-slam {command}: error: '), lines[0]
+    for n in needles:
+        assert n in lines[0], (n, lines[0])
+    return lines[0]
+
+
+def _flaser(ranges, t, n=None):
+    n = len(ranges) if n is None else n
+    return f'FLASER {n} {" ".join(map(str, ranges))} 0 0 0 0 0 0 {t} host {t}\n'
+
+
+def _mines_line(t_us, left, right, mm=1000):
+    return ' '.join([str(t_us), '0', str(left), str(right)] + ['0'] * 20 + [str(mm)] * 682
+                    + ['0']) + '\n'
+
+
+# ------------------------------------------------------------------------ the shared mechanism
+def test_skiplog_counts_names_and_caps(monkeypatch):
+    monkeypatch.setattr(skips, 'MAX_LINE_WARNINGS', 2)
+    counts, warnings = {'old': 1}, []
+    log = SkipLog(counts, warnings)
+    for line in (3, 5, 9):
+        log.skip('a.csv', line, 'NaN value', key='a.csv: NaN value', what='row')
+    log.skip('b.csv', 4, 'short row')
+    log.skip('img.png', None, 'truncated', key='bad image', what='image')
+    log.finish()
+    assert counts == {'old': 1, 'a.csv: NaN value': 3, 'short row': 1, 'bad image': 1}
+    assert warnings == ['a.csv:3: NaN value; row skipped', 'a.csv:5: NaN value; row skipped',
+                        'b.csv:4: short row; line skipped', 'img.png: truncated; image skipped',
+                        'a.csv: 1 more skipped not listed']
+
+
+# ------------------------------------------------------------------------ CARMEN / Mines readers
+def test_carmen_unknown_type_and_beam_count_against_header(tmp_path):
+    rl = ('ROBOTLASER1 0 -1.5 3.0 0.75 50.0 0.01 0 {n} ' + '{r}' +
+          ' 0 0 0 0 0 0 0 0 0 0 0 0 {t} host 1.0\n')
+    text = (_flaser([1, 2, 3, 4], '10.0')
+            + 'WIDGET 1 2 3\n'                                            # line 2: unknown type
+            + rl.format(n=4, r='1 2 3 4', t='10.1')                      # line 3: 4 x 0.75 = fov
+            + rl.format(n=8, r='1 2 3 4 5 6 7 8', t='10.2')              # line 4: 8 beams, fov 3.0
+            + 'WIDGET 4\n')                                               # line 5
+    p = tmp_path / 'x.clf'
+    p.write_text(text)
+    log = read_carmen(p)
+    assert [s.line_no for s in log.scans] == [3]  # FLASER dropped: ROBOTLASER1 present
+    assert log.skipped['WIDGET'] == 2 and log.skipped['malformed ROBOTLASER1'] == 1
+    assert ('x.clf:2: message type WIDGET is not read (only FLASER, ROBOTLASER1, ODOM); '
+            'its 2 lines skipped') in log.warnings
+    assert ('x.clf:4: ROBOTLASER1: 8 beams at angular_res 0.75 do not cover the header fov 3.0; '
+            'line skipped') in log.warnings
+
+
+def test_mines_stamp_faults_name_the_first_line(tmp_path):
+    p = tmp_path / 'm.dat'
+    p.write_text(_mines_line(1000, 0, 0) + _mines_line(2000, 1, 1) + _mines_line(2000, 2, 2)
+                 + _mines_line(1500, 3, 3) + _mines_line(3000, 4, 4))
+    log = read_mines(p)
+    assert list(log.stamps_us) == [1000, 2000, 2000, 1500, 3000]  # kept, in file order
+    assert log.warnings == ['m.dat: 1 timestamps repeat and 1 step back (first at line 3); '
+                            'kept in file order']
+
+
+# ------------------------------------------------------------------------ converters via the CLI
+def test_cli_convert_carmen_skips_and_counts(tmp_path):
+    good = [1.0, 2.0, 3.0, 81.9]
+    lines = [_flaser(good, '1.0'),
+             _flaser([1, 2, 3], '1.1', n=4),         # 2: short for its beam count
+             _flaser([1, 'x', 3, 4], '1.2'),         # 3: non-numeric
+             _flaser([1, 'nan', 3, 4], '1.3'),       # 4: NaN
+             'GARBAGE\x00\x01 7\n',                  # 5: unknown type
+             _flaser(good, '2.0'),                   # 6
+             _flaser(good, '2.0'),                   # 7: repeats line 6's stamp
+             _flaser(good, '1.5')]                   # 8: steps back
+    clf = tmp_path / 'bad.clf'
+    clf.write_text(''.join(lines))
+    res = cli('convert', 'carmen', clf, tmp_path / 'bag')
+    assert res.returncode == 0, res.stderr
+    out = res.stdout
+    assert '/scan: 4' in out
+    assert 'skipped 4: ' in out and 'malformed FLASER 3' in out
+    for needle in ('bad.clf:2: FLASER: expected 15 fields for 4 beams, got 14; line skipped',
+                   "bad.clf:3: FLASER: non-numeric range 'x'; line skipped",
+                   'bad.clf:4: FLASER: NaN or inf in range; line skipped',
+                   "bad.clf:5: message type 'GARBAGE\\x00\\x01' is not read",
+                   'bad.clf: 1 scan timestamps repeat the previous one and 1 step back '
+                   '(by up to 0.500 s; first at line 7); kept in file order',
+                   "record time moved forward for 2 log lines' messages"):
+        assert needle in out, (needle, out)
+    assert bag_info(tmp_path / 'bag')['topics']['/scan'][1] == 4
+
+
+def test_cli_convert_fatal_errors_are_one_line(tmp_path):
+    assert_fatal(cli('convert', 'carmen', tmp_path / 'nope.clf', tmp_path / 'b'), 'convert',
+                 'nope.clf', 'No such file')
+    only_bad = tmp_path / 'only_bad.clf'
+    only_bad.write_text(_flaser([1, 'x'], '1.0') + 'PARAM a b\n')
+    assert_fatal(cli('convert', 'carmen', only_bad, tmp_path / 'b'), 'convert',
+                 'only_bad.clf: no usable laser scan', "'malformed FLASER': 1")
+    assert not (tmp_path / 'b').exists()
+    dat = tmp_path / 'm.dat'
+    dat.write_text(_mines_line(1000, 0, 0))
+    (tmp_path / 'exists').mkdir()
+    assert_fatal(cli('convert', 'mines', dat, tmp_path / 'exists'), 'convert',
+                 'exists: already exists')
+    short = tmp_path / 'short.dat'
+    short.write_text('1 2 3\nabc\n')
+    assert_fatal(cli('convert', 'mines', short, tmp_path / 'b'), 'convert',
+                 'short.dat: no usable line', "'malformed': 2")
+    assert_fatal(cli('convert', 'kaist', tmp_path / 'nodir', tmp_path / 'b'), 'convert',
+                 'nodir: not a directory')
+
+
+def _kaist_dir(root: Path, n: int = 5) -> dict:
+    """Real param/ files, tiny CSVs, one stereo pair per scan (Bayer PNGs of the YAML's size)."""
+    import cv2
+
+    shutil.copytree(PARAM, root / 'param')
+    sd = root / 'sensor_data'
+    sd.mkdir()
+    t = 1544582648735466220 + np.arange(n, dtype=np.int64) * 10_000_000
+    (sd / 'encoder.csv').write_text(''.join(f'{s},{i},{i}\n' for i, s in enumerate(t)))
+    (sd / 'fog.csv').write_text(''.join(f'{s},0,0,0.001\n' for s in t))
+    (sd / 'lidar.csv').write_text(''.join(f'{s},' + ','.join(['5.0'] * 286) + '\n' for s in t))
+    fs = cv2.FileStorage(str(PARAM / 'left_camera.yaml'), cv2.FILE_STORAGE_READ)
+    w, h = int(fs.getNode('image_width').real()), int(fs.getNode('image_height').real())
+    fs.release()
+    pngs = []
+    for cam in ('left', 'right'):
+        d = root / 'stereo_images' / f'stereo_{cam}'
+        d.mkdir(parents=True)
+        for s in t:
+            cv2.imwrite(str(d / f'{s}.png'), np.full((h, w), 128, np.uint8))
+            pngs.append(d / f'{s}.png')
+    return {'t': t, 'pngs': pngs}
+
+
+@needs_kaist
+def test_cli_convert_kaist_faults(tmp_path):
+    root = tmp_path / 'kaist'
+    ds = _kaist_dir(root)
+    t = ds['t']
+    lidar = root / 'sensor_data' / 'lidar.csv'
+    rows = lidar.read_text().splitlines(keepends=True)
+    rows[1] = f'{t[1]},' + ','.join(['5.0'] * 200) + '\n'       # line 2: beams != lidar_param
+    rows[3] = rows[2]                                             # line 4: repeats line 3's stamp
+    lidar.write_text(''.join(rows))
+    enc = root / 'sensor_data' / 'encoder.csv'
+    enc.write_text(enc.read_text() + f'{t[-1] + 1},1,nan\n')      # line 6: NaN
+    bad_png = ds['pngs'][0]
+    bad_png.write_bytes(bad_png.read_bytes()[:100])               # truncated PNG
+    res = cli('convert', 'kaist', root, tmp_path / 'bag')
+    assert res.returncode == 0, res.stderr
+    out = res.stdout
+    assert '/scan: 3' in out and '/encoders: 5' in out and '/stereo/left/image_raw: 4' in out
+    for needle in (f'{lidar}:2: expected 287 columns, got 201; row skipped',
+                   f'{lidar}:4: timestamp repeats; row skipped',
+                   f'{enc}:6: NaN or inf value; row skipped',
+                   f'{bad_png}: not a readable PNG (truncated or corrupt); image skipped',
+                   'skipped 4: ', 'lidar.csv: expected 287 columns, got 201 1',
+                   'stereo_left: bad image 1'):
+        assert needle in out, (needle, out)
+
+    (root / 'param' / 'stereo_param.txt').unlink()
+    assert_fatal(cli('convert', 'kaist', root, tmp_path / 'bag2'), 'convert',
+                 'param/stereo_param.txt: missing')
+    shutil.copy(PARAM / 'stereo_param.txt', root / 'param')
+    yaml = root / 'param' / 'left_camera.yaml'
+    yaml.write_text(yaml.read_text()[:150])                       # truncated camera YAML
+    assert_fatal(cli('convert', 'kaist', root, tmp_path / 'bag3'), 'convert', 'left_camera.yaml')
+    (root / 'param' / 'Vehicle2Lidar.txt').write_text('RPY: 0 0 0\nR: 1 0 0 0 1 0 0 0 1\n')
+    assert_fatal(cli('convert', 'kaist', root, tmp_path / 'bag4'), 'convert',
+                 'Vehicle2Lidar.txt: no "t:" line')
+
+
+# ------------------------------------------------------------------------ bags for `pf-slam run`
+def _run_bag(path: Path, storage: str = 'mcap', n: int = 50, scan_type: bool = True) -> Path:
+    with open_writer(path, storage=storage) as bag:
+        bag.add_connection('/odom', 'nav_msgs/msg/Odometry')
+        bag.add_connection('/scan', 'sensor_msgs/msg/LaserScan' if scan_type else 'std_msgs/msg/String')
+        string = TYPESTORE.types['std_msgs/msg/String']
+        for i in range(n):
+            t = 1_000_000_000 + i * 100_000_000
+            bag.write('/odom', t, odometry(t, pose=(0.01 * i, 0.0, 0.0)))
+            bag.write('/scan', t, laser_scan(t, 'laser', -1.5, 0.01, np.full(300, 4.0), 0.0, 30.0)
+                      if scan_type else string(data='not a scan'))
+    return path
+
+
+def _bag_with_unknown_type(path: Path) -> Path:
+    store = get_typestore(Stores.ROS2_JAZZY)
+    store.register(get_types_from_msg('int32 x', 'acme_msgs/msg/Widget'))
+    w = Writer(path, version=9)
+    w.open()
+    conn = w.add_connection('/widget', 'acme_msgs/msg/Widget', typestore=store)
+    w.write(conn, 1, store.serialize_cdr(store.types['acme_msgs/msg/Widget'](x=1),
+                                         'acme_msgs/msg/Widget'))
+    w.close()
+    return path
+
+
+def test_check_run_inputs_names_found_and_needed(tmp_path):
+    ok = bag_info(_run_bag(tmp_path / 'ok'))
+    check_run_inputs(ok)  # no exception
+    wrong = bag_info(_run_bag(tmp_path / 'wrong', scan_type=False))
+    with pytest.raises(BagError) as e:
+        check_run_inputs(wrong)
+    msg = str(e.value)
+    assert '\n' not in msg
+    assert 'wrong: cannot run: /scan is std_msgs/msg/String, expected sensor_msgs/msg/LaserScan.' in msg
+    assert 'Found: /odom [nav_msgs/msg/Odometry] (50), /scan [std_msgs/msg/String] (50).' in msg
+    assert msg.endswith('Needs: /scan [sensor_msgs/msg/LaserScan] with messages, and /odom '
+                        '[nav_msgs/msg/Odometry] or /encoders [sensor_msgs/msg/JointState]')
+    with pytest.raises(BagError, match=r'cannot run: /scan has no messages\. Found: /odom .*\(0\)'):
+        check_run_inputs(bag_info(_run_bag(tmp_path / 'empty', n=0)))
+    with pytest.raises(BagError, match=(r'cannot run: no /scan topic; no /odom or /encoders topic; '
+                                        r'message types unknown to this ROS install: '
+                                        r'acme_msgs/msg/Widget\. Found: /widget '
+                                        r'\[acme_msgs/msg/Widget\] \(1\)')):
+        check_run_inputs(bag_info(_bag_with_unknown_type(tmp_path / 'widget')))
+    fog = dict(ok, topics=dict(ok['topics'], **{'/fog': ('sensor_msgs/msg/Imu', 3)}))
+    with pytest.raises(BagError, match='/fog is sensor_msgs/msg/Imu, expected '
+                                       'pf_slam_interfaces/msg/FogBatch or geometry_msgs/msg/Vector3Stamped'):
+        check_run_inputs(fog)
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_cli_run_refuses_bad_bags(tmp_path, storage, ros_domain):
+    out = tmp_path / 'run'
+    wrong = _run_bag(tmp_path / 'wrong', storage, scan_type=False)
+    assert_fatal(cli('run', wrong, '--out', out), 'run', 'wrong: cannot run: /scan is std_msgs/msg/String',
+                 'Found: ', 'Needs: ')
+    assert not out.exists()  # nothing written for a bag that cannot run
+    bag = _run_bag(tmp_path / 'trunc', storage, n=400)
+    data = next(f for f in bag.iterdir() if f.suffix in ('.mcap', '.db3'))
+    data.write_bytes(data.read_bytes()[:len(data.read_bytes()) // 3])
+    assert_fatal(cli('run', bag, '--out', out), 'run', str(bag))
+    data.write_bytes(b'\x00garbage' * 100)
+    assert_fatal(cli('run', bag, '--out', out), 'run', str(bag))
+    assert_fatal(cli('run', tmp_path / 'missing', '--out', out), 'run', 'missing: no such file')
+    assert not out.exists()
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_corrupt_bytes_inside_a_bag_raise_bag_error(tmp_path, storage):
+    """Damage in the middle of the data file (the end intact): BagError naming the bag, at open
+    (sqlite3) or when the reader reaches the damaged chunk (MCAP) -- never a raw exception."""
+    bag = _run_bag(tmp_path / 'mid', storage, n=2000)
+    data = next(f for f in bag.iterdir() if f.suffix in ('.mcap', '.db3'))
+    b = bytearray(data.read_bytes())
+    b[len(b) // 2:len(b) // 2 + 5000] = b'\xff' * 5000
+    data.write_bytes(bytes(b))
+    n = 0
+    with pytest.raises(BagError, match=f'{bag}: cannot (open bag|read messages)'):
+        for _ in read_bag(bag):
+            n += 1
+    assert n < 4000  # stopped at the damage
