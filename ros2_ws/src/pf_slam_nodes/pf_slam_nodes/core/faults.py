@@ -7,6 +7,7 @@ ROS-free: the predictor reads the scan's fields from its CDR bytes and calls the
 """
 from __future__ import annotations
 
+import math
 from typing import Optional
 
 import numpy as np
@@ -49,12 +50,13 @@ class ScanChecks:
         """
         faults: list[tuple[str, str]] = []
         r = np.asarray(ranges)
-        with np.errstate(invalid="ignore"):
-            bad = int(np.count_nonzero(np.isnan(r) | (r < 0)))
-        if bad:
+        low = r.min() if r.size else 0.0  # NaN if any is NaN: one pass for the clean scans
+        if not low >= 0:
+            with np.errstate(invalid="ignore"):
+                bad = int(np.count_nonzero(np.isnan(r) | (r < 0)))
             faults.append((SCAN_BAD_RANGES, f"{bad} of {r.size} ranges NaN or negative, ignored"))
         usable = True
-        if angle_increment != 0 and np.isfinite([angle_min, angle_max, angle_increment]).all():
+        if angle_increment != 0 and math.isfinite(angle_min + angle_max + angle_increment):
             expected = (angle_max - angle_min) / angle_increment + 1.0
             if abs(expected - r.size) > 1.5:  # rounding of float32 angles: well under half a beam
                 usable = False
