@@ -47,3 +47,13 @@ def test_remaps_and_topics_from_a_parameter_file():
     assert topic_remaps({"scan": "/front/scan", "odom": "/odom", "stereo_left": "/x"}) == {"scan": "/front/scan"}
     layer = {"/**": {"topics.scan": "/front/scan", "filter.seed": 1}}
     assert params_topics(layer) == {"scan": "/front/scan"} and layer == {"/**": {"filter.seed": 1}}
+
+
+def test_an_imu_is_the_gyro_of_wheel_encoders_only():
+    IMU = "sensor_msgs/msg/Imu"
+    assert select_inputs("b", info(scan=SCAN, encoders=JS, imu__data=IMU)) == \
+        {"scan": "/scan", "encoders": "/encoders", "imu": "/imu/data"}
+    assert select_inputs("b", info(scan=SCAN, odom=ODOM, imu__data=IMU)) == {"scan": "/scan", "odom": "/odom"}
+    assert select_inputs("b", info(scan=SCAN, encoders=JS, imu=IMU, fog="pf_slam_interfaces/msg/FogBatch")) == \
+        {"scan": "/scan", "encoders": "/encoders", "fog": "/fog"}  # the FOG, when there is one
+    assert topic_remaps({"scan": "/scan", "imu": "/imu/data"}) == {"imu": "/imu/data"}

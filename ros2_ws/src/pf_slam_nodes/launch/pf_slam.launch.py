@@ -24,7 +24,7 @@ def generate_launch_description():
     arg = LaunchConfiguration
     common = [arg("params_file"), {"use_sim_time": arg("use_sim_time")}]
     remaps = [("scan", arg("scan_topic")), ("odom", arg("odom_topic")), ("encoders", arg("encoders_topic")),
-              ("fog", arg("fog_topic"))]
+              ("fog", arg("fog_topic")), ("imu", arg("imu_topic"))]
     extra = {"bag_replay": [{"bag": arg("bag"), "scan_topic": arg("scan_topic")}]}
     nodes = [Node(package="pf_slam_nodes", executable=name, name=name, output="screen",
                   parameters=common + extra.get(name, []), remappings=remaps,
@@ -39,5 +39,6 @@ def generate_launch_description():
         DeclareLaunchArgument("odom_topic", default_value="/odom", description="nav_msgs/Odometry"),
         DeclareLaunchArgument("encoders_topic", default_value="/encoders", description="sensor_msgs/JointState"),
         DeclareLaunchArgument("fog_topic", default_value="/fog", description="FogBatch or Vector3Stamped"),
+        DeclareLaunchArgument("imu_topic", default_value="/imu", description="sensor_msgs/Imu (fog_format: imu)"),
         *nodes,
     ])

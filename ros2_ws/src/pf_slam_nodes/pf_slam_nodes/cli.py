@@ -55,11 +55,12 @@ def build_parser() -> argparse.ArgumentParser:
     for role, what in (("scan", "sensor_msgs/LaserScan"), ("odom", "nav_msgs/Odometry"),
                        ("encoders", "sensor_msgs/JointState wheel angles (rad)"),
                        ("fog", "gyro yaw increments with encoders: FogBatch or Vector3Stamped"),
+                       ("imu", "sensor_msgs/Imu, its yaw rate as the gyro with encoders"),
                        ("stereo-left", "sensor_msgs/Image (texture)"), ("stereo-right", "sensor_msgs/Image (texture)")):
         default = DEFAULT_INPUTS[role.replace("-", "_")]
         r.add_argument(f"--{role}-topic", metavar="TOPIC",
                        help=f"the bag's {what} topic (default: {default}"
-                            + (", or the bag's only one of that type)" if role in ("scan", "odom", "encoders") else ")"))
+                            + (", or the bag's only one of that type)" if role in ("scan", "odom", "encoders", "imu") else ")"))
     r.add_argument("--no-record", action="store_true", help="do not write OUT/result.mcap")
     r.add_argument("--record-map-every", type=float, metavar="S",
                    help="result.mcap: a /map every S seconds of bag time (default: bag duration / 20; "

@@ -104,13 +104,14 @@ INPUT_TYPES: dict[str, tuple[str, ...]] = {
     "odom": ("nav_msgs/msg/Odometry",),
     "encoders": ("sensor_msgs/msg/JointState",),
     "fog": ("pf_slam_interfaces/msg/FogBatch", "geometry_msgs/msg/Vector3Stamped"),
+    "imu": ("sensor_msgs/msg/Imu",),
     "stereo_left": ("sensor_msgs/msg/Image",),
     "stereo_right": ("sensor_msgs/msg/Image",),
 }
-DEFAULT_INPUTS = {"scan": "/scan", "odom": "/odom", "encoders": "/encoders", "fog": "/fog",
+DEFAULT_INPUTS = {"scan": "/scan", "odom": "/odom", "encoders": "/encoders", "fog": "/fog", "imu": "/imu",
                   "stereo_left": TEXTURE_INPUT, "stereo_right": "/stereo/right/image_raw"}
 ROLE_WORDS = {"scan": "lidar (LaserScan)", "odom": "odometry (Odometry)", "encoders": "wheel encoders (JointState)",
-              "fog": "gyro yaw (fog)", "stereo_left": "stereo left (texture)", "stereo_right": "stereo right (texture)"}
+              "fog": "gyro yaw (fog)", "imu": "gyro yaw (Imu angular_velocity.z)", "stereo_left": "stereo left (texture)", "stereo_right": "stereo right (texture)"}
 
 
 def select_inputs(bag: str, info: dict, requested: dict[str, str] | None = None) -> dict[str, str]:
@@ -133,7 +134,7 @@ def select_inputs(bag: str, info: dict, requested: dict[str, str] | None = None)
     for role, name in DEFAULT_INPUTS.items():
         if role not in sel and topics.get(name, ("",))[0] in INPUT_TYPES[role]:
             sel[role] = name
-    for role in ("scan", "odom", "encoders"):
+    for role in ("scan", "odom", "encoders", "imu"):
         of_type = sorted(t for t, (m, _) in topics.items() if m in INPUT_TYPES[role])
         if role not in sel and len(of_type) == 1:
             sel[role] = of_type[0]
@@ -146,6 +147,8 @@ def select_inputs(bag: str, info: dict, requested: dict[str, str] | None = None)
     if "odom" not in sel and "encoders" not in sel:
         raise _no_input(bag, info, "needs nav_msgs/msg/Odometry (--odom-topic) or sensor_msgs/msg/JointState "
                                    f"wheel angles (--encoders-topic) for the motion model; found: {found}")
+    if "encoders" not in sel or "fog" in sel:
+        sel.pop("imu", None)  # one gyro, with the encoders only (Odometry has its own yaw)
     if "encoders" not in sel:
         sel.pop("fog", None)
     return sel
@@ -179,7 +182,7 @@ def params_topics(layer: dict[str, dict[str, Any]]) -> dict[str, str]:
 
 def topic_remaps(inputs: dict[str, str]) -> dict[str, str]:
     """The nodes' relative input names remapped to the bag's topics (as `ros2 launch ... scan_topic:=`)."""
-    return {role: t for role, t in inputs.items() if role in ("scan", "odom", "encoders", "fog") and t != f"/{role}"}
+    return {role: t for role, t in inputs.items() if role in ("scan", "odom", "encoders", "fog", "imu") and t != f"/{role}"}
 
 
 def input_report(bag: str, info: dict, inputs: dict[str, str], predictor: dict[str, Any]) -> str:
@@ -236,6 +239,8 @@ def detect_inputs(bag: str, info: dict, inputs: dict[str, str] | None = None) ->
         if "fog" in inputs:
             predictor["fog_format"] = {"pf_slam_interfaces/msg/FogBatch": "batch",
                                        "geometry_msgs/msg/Vector3Stamped": "vector3"}[topics[inputs["fog"]][0]]
+        elif "imu" in inputs:
+            predictor["fog_format"] = "imu"
     out: dict[str, dict[str, Any]] = {"predictor": predictor, "bag_replay": {"scan_topic": scan_topic}}
     if "stereo_left" in inputs and "stereo_right" in inputs:
         left, right = inputs["stereo_left"], inputs["stereo_right"]

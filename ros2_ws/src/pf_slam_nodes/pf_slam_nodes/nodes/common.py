@@ -48,7 +48,8 @@ PARAM_DOCS: dict[str, str] = {
     "base_frame": "REP-105 robot frame (base_link): child of odom_frame, parent of the sensor frames",
     "odometry_source": "'odom' (nav_msgs/Odometry on odom) or 'encoders' (JointState wheel angles on encoders)",
     "odom_sync": "'exact': odometry stamped like each scan (same log line); 'interpolate': asynchronous odometry",
-    "fog_format": "yaw from a gyro on fog instead of the wheels: 'none', 'batch' (FogBatch) or 'vector3' (Vector3Stamped)",
+    "fog_format": "yaw from a gyro instead of the wheels: 'none', 'batch' (FogBatch on fog), 'vector3' "
+                  "(Vector3Stamped on fog) or 'imu' (sensor_msgs/Imu on imu, mounted level: angular_velocity.z)",
     "wheels.left_diameter_m": "left wheel diameter, odometry_source encoders (m)",
     "wheels.right_diameter_m": "right wheel diameter, odometry_source encoders (m)",
     "wheels.base_m": "distance between the wheels, odometry_source encoders (m)",

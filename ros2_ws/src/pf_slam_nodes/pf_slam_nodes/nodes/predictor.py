@@ -36,7 +36,7 @@ from geometry_msgs.msg import PoseStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
 from pf_slam_interfaces.msg import FogBatch, ParticleArray, ReplayStatus
 from rclpy.node import Node
-from sensor_msgs.msg import JointState, LaserScan
+from sensor_msgs.msg import Imu, JointState, LaserScan
 from tf2_msgs.msg import TFMessage
 
 from ..core.faults import ODOMETRY_NONFINITE, ScanChecks
@@ -95,20 +95,23 @@ class Predictor(Node):
             self.last_encoder_ns: int | None = None
             self.create_subscription(JointState, topics.ENCODERS, self._on_encoders, qos.pipeline(10000),
                                      raw=True)
-        # yaw from a gyro (FOG) instead of the wheels: "none" | "batch" (FogBatch) | "vector3"
+        # yaw from a gyro instead of the wheels: "none" | "batch" (FogBatch) | "vector3" | "imu" (Imu on imu)
         fog = param(self, "fog_format", "none")
-        if fog not in ("none", "batch", "vector3"):
-            raise ValueError(f"parameter 'fog_format' must be 'none', 'batch' or 'vector3', got {fog!r}")
+        if fog not in ("none", "batch", "vector3", "imu"):
+            raise ValueError(f"parameter 'fog_format' must be 'none', 'batch', 'vector3' or 'imu', got {fog!r}")
         if fog != "none" and source != "encoders":
             raise ValueError("parameter 'fog_format' needs odometry_source 'encoders'")
         self.gyro = GyroBuffer() if fog != "none" else None
         self.fog_received = 0
         self.fog_expected: int | None = None
-        self.fog_topic = self.resolve_topic_name(topics.FOG)
+        self.fog_topic = self.resolve_topic_name(topics.IMU if fog == "imu" else topics.FOG)
+        self.last_imu_ns: int | None = None
         if fog == "batch":
             self.create_subscription(FogBatch, topics.FOG, self._on_fog_batch, qos.pipeline(10000), raw=True)
         elif fog == "vector3":
             self.create_subscription(Vector3Stamped, topics.FOG, self._on_fog_vector, qos.pipeline(100000))
+        elif fog == "imu":
+            self.create_subscription(Imu, topics.IMU, self._on_imu, qos.pipeline(100000))
         # "final" once the last scan of the bag is posed: the run's summary waits for it
         self._publish_status = status_publisher(self, lambda: {
             "final": self.poses_published == self.scans_expected, "scans": self.scan_count,
@@ -174,6 +177,18 @@ class Predictor(Node):
     def _on_fog_vector(self, msg: Vector3Stamped) -> None:
         if self._finite(np.array([msg.vector.z]), "fog"):
             self.gyro.add([convert.stamp_to_ns(msg.header.stamp)], [msg.vector.z])
+        self.fog_received += 1
+        self._drain()
+
+    def _on_imu(self, msg: Imu) -> None:
+        """sensor_msgs/Imu (mounted level): yaw increment angular_velocity.z * the time since the
+        previous sample (the first sample adds none)."""
+        t = convert.stamp_to_ns(msg.header.stamp)
+        rate = msg.angular_velocity.z
+        if self._finite(np.array([rate]), "imu"):
+            dt = 0.0 if self.last_imu_ns is None else max(t - self.last_imu_ns, 0) / 1e9
+            self.gyro.add([t], [rate * dt])
+            self.last_imu_ns = t
         self.fog_received += 1
         self._drain()
 
