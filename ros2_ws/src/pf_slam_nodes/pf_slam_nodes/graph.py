@@ -96,8 +96,7 @@ def node_params(layers: list[dict[str, dict[str, Any]]], node: str) -> dict[str,
     return merged
 
 
-# ---------------------------------------------------------------------------- bag inspection
-# ---------------------------------------------------------------------------- bring your own bag
+# ---------------------------------------------------------------------------- bag inspection, bring your own bag
 #: The graph's inputs: the nodes' (relative) topic name -> the message types it takes
 INPUT_TYPES: dict[str, tuple[str, ...]] = {
     "scan": ("sensor_msgs/msg/LaserScan",),
@@ -247,46 +246,52 @@ def detect_inputs(bag: str, info: dict, inputs: dict[str, str] | None = None) ->
         out["texture"] = {"left_topic": left, "right_topic": right,
                           "left_info_topic": left.rsplit("/", 1)[0] + "/camera_info",
                           "right_info_topic": right.rsplit("/", 1)[0] + "/camera_info"}
-    mount = _laser_mount(bag, topics, scan_frame)
+    scan_tf = _scan_frame_transform(bag, topics, scan_frame)
+    mount = _laser_mount(scan_tf)
     if mount is not None:
         out["/**"] = {"laser.extrinsic": mount}
-    for node, params in tf_inputs(bag, topics, scan_frame).items():
+    for node, params in tf_inputs(topics, scan_tf).items():
         out.setdefault(node, {}).update(params)
     return out
 
 
-def tf_inputs(bag: str, topics: dict, scan_frame: str | None) -> dict[str, dict[str, Any]]:
+def tf_inputs(topics: dict, scan_tf) -> dict[str, dict[str, Any]]:
     """REP-105 transforms the bag already has, so the graph does not publish them twice: its
     own /tf (odom -> base_link from the robot) turns the predictor's off, a /tf_static mount of
-    the scan's frame the mapper's."""
+    the scan's frame (`scan_tf`, from _scan_frame_transform) the mapper's."""
     out: dict[str, dict[str, Any]] = {}
     if "/tf" in topics:
         out["predictor"] = {"publish_odom_tf": False}
-    if "/tf_static" in topics and scan_frame:
-        for _, msgtype, _, raw in read_bag(bag, topics=["/tf_static"]):
-            if any(tr.child_frame_id == scan_frame for tr in deserialize(raw, msgtype).transforms):
-                out["mapper"] = {"publish_sensor_tf": False}
+    if scan_tf is not None:
+        out["mapper"] = {"publish_sensor_tf": False}
     return out
 
 
-def _laser_mount(bag: str, topics: dict, scan_frame: str | None) -> list[float] | None:
-    """R (row-major) + T of base_link -> the scan's frame from /tf_static, if it is not planar."""
+def _scan_frame_transform(bag: str, topics: dict, scan_frame: str | None):
+    """The bag's /tf_static transform whose child is the scan's frame (its mount), or None."""
     if "/tf_static" not in topics or not scan_frame:
         return None
     for _, msgtype, _, raw in read_bag(bag, topics=["/tf_static"]):
         for tr in deserialize(raw, msgtype).transforms:
-            if tr.child_frame_id != scan_frame:
-                continue
-            q = tr.transform.rotation
-            x, y, z, w = q.x, q.y, q.z, q.w
-            rot = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-            if abs(rot[2, 2] - 1.0) < 1e-6:  # scan plane horizontal: the 2D path is exact
-                return None
-            t = tr.transform.translation
-            return [float(v) for v in rot.reshape(-1)] + [float(t.x), float(t.y), float(t.z)]
+            if tr.child_frame_id == scan_frame:
+                return tr
     return None
+
+
+def _laser_mount(tr) -> list[float] | None:
+    """R (row-major) + T of base_link -> the scan's frame (`tr`: its /tf_static transform or
+    None), if the scan plane is not horizontal."""
+    if tr is None:
+        return None
+    q = tr.transform.rotation
+    x, y, z, w = q.x, q.y, q.z, q.w
+    rot = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                    [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                    [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    if abs(rot[2, 2] - 1.0) < 1e-6:  # scan plane horizontal: the 2D path is exact
+        return None
+    t = tr.transform.translation
+    return [float(v) for v in rot.reshape(-1)] + [float(t.x), float(t.y), float(t.z)]
 
 
 # ---------------------------------------------------------------------------- the run

@@ -22,15 +22,21 @@ DATASETS = {
 }
 
 
+def carmen_bag(data_dir: Path, out_dir: Path, name: str) -> Path:
+    """The log `name` converted to ``out_dir/bags/name`` (once; cached there)."""
+    bag = out_dir / "bags" / name
+    if not (bag / "metadata.yaml").is_file():
+        bag.parent.mkdir(parents=True, exist_ok=True)
+        convert_carmen(data_dir / "carmen" / DATASETS[name][0], bag)
+    return bag
+
+
 def bench(data_dir: Path, out_dir: Path, names=tuple(DATASETS), seeds=(0,), processes: str = "single",
           params_file: str | None = None) -> list[dict]:
     rows = []
     for name in names:
-        log, rel, ref = DATASETS[name]
-        bag = out_dir / "bags" / name
-        if not (bag / "metadata.yaml").is_file():
-            bag.parent.mkdir(parents=True, exist_ok=True)
-            convert_carmen(data_dir / "carmen" / log, bag)
+        _, rel, ref = DATASETS[name]
+        bag = carmen_bag(data_dir, out_dir, name)
         from .ceiling import replay_ceiling
         ceiling = replay_ceiling(str(bag))["real_time_factor"]
         for seed in seeds:

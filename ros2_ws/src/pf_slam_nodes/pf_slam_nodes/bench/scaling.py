@@ -18,21 +18,12 @@ import numpy as np
 import yaml
 
 from ..core.metrics import evaluate
-from ..io.convert import convert_carmen
 from . import STAGE_COLUMNS, stage_cells
-from .carmen import DATASETS
+from .carmen import DATASETS, carmen_bag
 
 CARMEN_YAML = Path(__file__).resolve().parents[2] / "config" / "carmen_indoor.yaml"
 PARTICLES = (10, 30, 100, 300, 1000)
 GRID_CELLS = (500, 1000, 2000, 4000)
-
-
-def _bag(data_dir: Path, out_dir: Path, name: str) -> Path:
-    bag = out_dir / "bags" / name
-    if not (bag / "metadata.yaml").is_file():
-        bag.parent.mkdir(parents=True, exist_ok=True)
-        convert_carmen(data_dir / "carmen" / DATASETS[name][0], bag)
-    return bag
 
 
 def _params_with_grid(run_dir: Path, cells: int) -> Path:
@@ -64,7 +55,7 @@ def bench(data_dir: Path, out_dir: Path, particles=PARTICLES, grid_cells=GRID_CE
     sweeps = [("particles", particles_log, n, None) for n in particles]
     sweeps += [("grid", grid_log, 30, c) for c in grid_cells]
     for sweep, name, n, cells in sweeps:
-        bag = _bag(data_dir, out_dir, name)
+        bag = carmen_bag(data_dir, out_dir, name)
         run_dir = out_dir / "scaling" / (f"{name}_n{n}" if cells is None else f"{name}_grid{cells}")
         run_dir.mkdir(parents=True, exist_ok=True)
         params = CARMEN_YAML if cells is None else _params_with_grid(run_dir, cells)
