@@ -50,3 +50,32 @@ def test_wheel_integrator_straight_and_turn():
     assert p2[2] == pytest.approx(0.6)
     with pytest.raises(ValueError, match="wheel_base_m"):
         WheelOdometryIntegrator(0.2, 0.2, 0.0)
+
+
+def _drive_with_biased_gyro(rest_bias: bool, rest_steps: int, bias_rad_s: float = 5e-4, rest_min_s: float = 0.5):
+    """100 Hz steps: `rest_steps` at rest, then 10 s straight at 1 m/s; the gyro adds a constant bias."""
+    w = WheelOdometryIntegrator(0.5, 0.5, 1.5, gyro_rest_bias=rest_bias, rest_min_s=rest_min_s)
+    dt, angle = 0.01, 0.0
+    w.step(0.0, 0.0, None)
+    for k in range(rest_steps + 1000):
+        if k >= rest_steps:
+            angle += 1.0 * dt / 0.25  # wheel radius 0.25 m: 1 m/s
+        w.add_gyro(bias_rad_s * dt)
+        pose = w.step(angle, angle, dt)
+    return w, pose
+
+
+def test_gyro_rest_bias_calibrates_at_standstill():
+    raw, p_raw = _drive_with_biased_gyro(False, 100)
+    assert p_raw[2] == pytest.approx(5e-4 * 11.0, rel=1e-6)  # the bias turns the heading, at rest too
+    cal, p_cal = _drive_with_biased_gyro(True, 100)
+    assert cal.gyro_bias_rad_s == pytest.approx(5e-4, rel=1e-6) and cal.rest_s == pytest.approx(1.0)
+    assert abs(p_cal[2]) < 1e-9 and abs(p_cal[1]) < 1e-9 and p_cal[0] == pytest.approx(10.0)
+
+
+def test_gyro_rest_bias_ignores_short_rests_but_zeroes_their_yaw():
+    w, p = _drive_with_biased_gyro(True, 30)  # 0.3 s: a wheel that did not tick, not a calibration
+    assert w.gyro_bias_rad_s == 0.0 and w.rest_s == 0.0
+    assert p[2] == pytest.approx(5e-4 * 10.0, rel=1e-6)  # the rest steps' yaw was zeroed, moving ones kept
+    with pytest.raises(ValueError, match="rest_min_s"):
+        WheelOdometryIntegrator(0.5, 0.5, 1.5, gyro_rest_bias=True, rest_min_s=0.0)

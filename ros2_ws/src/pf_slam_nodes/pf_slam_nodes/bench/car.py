@@ -23,8 +23,10 @@ from . import stage_table
 KAIST_YAML = Path(__file__).resolve().parents[2] / "config" / "kaist.yaml"
 
 
-def dead_reckoning(dataset_dir: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """Encoders + FOG integrated exactly as the predictor does (no noise, no scans).
+def dead_reckoning(dataset_dir: str | Path, gyro_rest_bias: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Encoders + FOG integrated exactly as the predictor does (no noise, no scans); with
+    ``gyro_rest_bias``, the FOG's bias calibrated at standstill (the predictor's
+    ``wheels.gyro_rest_bias``), else the raw sensors (the baseline of the car targets).
 
     Returns ``(stamps_ns (K,), poses (K, 3))`` at the encoder stamps.
     """
@@ -35,13 +37,14 @@ def dead_reckoning(dataset_dir: str | Path) -> tuple[np.ndarray, np.ndarray]:
     p = parse_encoder_params(d / "param" / "EncoderParameter.txt")
     gyro = GyroBuffer()
     gyro.add(fog_t, fog_yaw)
-    wheels = WheelOdometryIntegrator(p["left_wheel_diameter_m"], p["right_wheel_diameter_m"], p["wheel_base_m"])
+    wheels = WheelOdometryIntegrator(p["left_wheel_diameter_m"], p["right_wheel_diameter_m"], p["wheel_base_m"],
+                                     gyro_rest_bias=gyro_rest_bias)
     k = 2.0 * math.pi / p["resolution"]
     poses, prev = np.empty((enc.shape[0], 3)), None
     for i, (t, left, right) in enumerate(enc):
         if prev is not None:
             wheels.add_gyro(gyro.yaw_between(prev, int(t)))
-        poses[i] = wheels.step(left * k, right * k)
+        poses[i] = wheels.step(left * k, right * k, None if prev is None else (int(t) - prev) / 1e9)
         prev = int(t)
     return enc[:, 0], poses
 

@@ -134,10 +134,19 @@ class WheelOdometryIntegrator:
     ``max_speed_mps * max(dt, 0.1 s)`` is an encoder counter jump (a reset, a wrap, a glitch):
     its wheel motion is discarded (the counters are re-based there; a gyro's yaw still applies)
     and counted in ``jumps``. Only checked when :meth:`step` is given ``dt_s``.
+
+    ``gyro_rest_bias``: standstill calibration of the gyro's yaw bias (a zero-velocity update).
+    A step in which neither wheel counter moved is a rest step: its yaw change is zero, whatever
+    the gyro says. Once the vehicle has been at rest for ``rest_min_s`` in a row, what the gyro
+    integrated over those steps is its bias; ``gyro_bias_rad_s`` is the mean over all rest time so
+    far, and each moving step's gyro yaw is corrected by ``gyro_bias_rad_s * dt_s``. Causal (only
+    rest seen before a step corrects it); needs ``dt_s``. Shorter rests (a wheel that happens not to
+    tick in one step while creeping) only get the zero yaw.
     """
 
     def __init__(self, left_diameter_m: float, right_diameter_m: float, wheel_base_m: float,
-                 max_speed_mps: float = math.inf) -> None:
+                 max_speed_mps: float = math.inf, gyro_rest_bias: bool = False,
+                 rest_min_s: float = 0.5) -> None:
         for name, v in (("left_diameter_m", left_diameter_m), ("right_diameter_m", right_diameter_m),
                         ("wheel_base_m", wheel_base_m)):
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -148,6 +157,13 @@ class WheelOdometryIntegrator:
         if not max_speed_mps > 0:
             raise ValueError(f"max_speed_mps must be > 0, got {max_speed_mps!r}")
         self.max_speed_mps = float(max_speed_mps)
+        if not (math.isfinite(rest_min_s) and rest_min_s > 0):
+            raise ValueError(f"rest_min_s must be > 0, got {rest_min_s!r}")
+        self.gyro_rest_bias = bool(gyro_rest_bias)
+        self.rest_min_s = float(rest_min_s)
+        self._rest_run_s = 0.0                       # length of the current rest run
+        self._rest_yaw = self._rest_s = 0.0          # the part of it not yet committed
+        self._bias_yaw = self._bias_s = 0.0          # committed rest time and the gyro's yaw over it
         self.jumps = 0
         self.pose = np.zeros(3)
         self._last: Optional[tuple[float, float]] = None
@@ -159,9 +175,35 @@ class WheelOdometryIntegrator:
         self.use_gyro = True
         self._pending_gyro_yaw += float(dyaw_rad)
 
+    @property
+    def gyro_bias_rad_s(self) -> float:
+        """The gyro's yaw bias estimated at rest (rad/s; 0 before the first rest)."""
+        return self._bias_yaw / self._bias_s if self._bias_s > 0 else 0.0
+
+    @property
+    def rest_s(self) -> float:
+        """Rest time the bias estimate is based on (s)."""
+        return self._bias_s
+
+    def _gyro_yaw(self, yaw: float, rest: bool, dt_s: Optional[float]) -> float:
+        """A step's yaw from the gyro's increments: zero at rest, bias-corrected when moving."""
+        if not self.gyro_rest_bias or dt_s is None:
+            return yaw
+        if rest:
+            self._rest_yaw += yaw
+            self._rest_s += dt_s
+            self._rest_run_s += dt_s
+            if self._rest_run_s >= self.rest_min_s:  # long enough: a rest, not a wheel that did not tick
+                self._bias_yaw += self._rest_yaw   # (the run so far, then each further rest step)
+                self._bias_s += self._rest_s
+                self._rest_yaw = self._rest_s = 0.0
+            return 0.0
+        self._rest_yaw = self._rest_s = self._rest_run_s = 0.0
+        return yaw - self.gyro_bias_rad_s * dt_s
+
     def step(self, left_rad: float, right_rad: float, dt_s: Optional[float] = None) -> np.ndarray:
         """Advance with new cumulative wheel angles (``dt_s`` since the previous step, for the
-        counter-jump check); returns the pose (odometry frame)."""
+        counter-jump check and the gyro's rest bias); returns the pose (odometry frame)."""
         if self._last is None:
             self._last = (left_rad, right_rad)
             return self.pose.copy()
@@ -172,7 +214,7 @@ class WheelOdometryIntegrator:
             dl = dr = 0.0
         d, w = wheel_odometry(dl, dr, self.left_diameter_m, self.right_diameter_m, self.wheel_base_m)
         if self.use_gyro:
-            w = self._pending_gyro_yaw
+            w = self._gyro_yaw(self._pending_gyro_yaw, left_rad == self._last[0] and right_rad == self._last[1], dt_s)
             self._pending_gyro_yaw = 0.0
         self.pose = integrate_diff_drive(self.pose, float(d), float(w))
         self._last = (left_rad, right_rad)

@@ -53,6 +53,9 @@ PARAM_DOCS: dict[str, str] = {
     "wheels.left_diameter_m": "left wheel diameter, odometry_source encoders (m)",
     "wheels.right_diameter_m": "right wheel diameter, odometry_source encoders (m)",
     "wheels.base_m": "distance between the wheels, odometry_source encoders (m)",
+    "wheels.gyro_rest_bias": "with a gyro: steps where neither wheel counter moved have zero yaw, and rests of "
+                              "wheels.rest_min_s or longer calibrate the gyro's yaw bias (standstill calibration)",
+    "wheels.rest_min_s": "wheels.gyro_rest_bias: shortest rest (no counter moving) that calibrates the gyro bias (s)",
     "wheels.max_speed_mps": "a wheel step faster than this is an encoder counter jump: its motion is "
                             "discarded and counted (m/s)",
     "time_gap_s": "scan stamps stepping forward by more than this are counted as a time gap (s)",

@@ -90,7 +90,9 @@ class Predictor(Node):
             self.wheels = WheelOdometryIntegrator(param(self, "wheels.left_diameter_m", 0.154),
                                                   param(self, "wheels.right_diameter_m", 0.154),
                                                   param(self, "wheels.base_m", 0.33),
-                                                  param(self, "wheels.max_speed_mps", 50.0))
+                                                  param(self, "wheels.max_speed_mps", 50.0),
+                                                  param(self, "wheels.gyro_rest_bias", True),
+                                                  param(self, "wheels.rest_min_s", 0.5))
             self.encoders: deque[tuple[int, float, float]] = deque()
             self.last_encoder_ns: int | None = None
             self.create_subscription(JointState, topics.ENCODERS, self._on_encoders, qos.pipeline(10000),
@@ -115,7 +117,7 @@ class Predictor(Node):
         # "final" once the last scan of the bag is posed: the run's summary waits for it
         self._publish_status = status_publisher(self, lambda: {
             "final": self.poses_published == self.scans_expected, "scans": self.scan_count,
-            "faults": self.faults()})
+            "faults": self.faults(), **self._gyro_status()})
 
     def _init_odom_tf(self) -> None:
         """odom -> base_link on /tf, one per scan, as bytes (the car's lidar runs at 100 Hz)."""
@@ -231,6 +233,13 @@ class Predictor(Node):
         if kind not in self._fault_loggers:
             self._fault_loggers[kind] = self.get_logger().get_child(kind)
         self._fault_loggers[kind].warn(text, throttle_duration_sec=5.0)
+
+    def _gyro_status(self) -> dict:
+        """The gyro's rest-calibrated bias (summary.json "gyro"), when wheels + gyro are used."""
+        w = getattr(self, "wheels", None)
+        if w is None or self.gyro is None or not w.gyro_rest_bias:
+            return {}
+        return {"gyro": {"bias_rad_s": w.gyro_bias_rad_s, "rest_s": round(w.rest_s, 3)}}
 
     def faults(self) -> dict[str, int]:
         """Every fault counter of the run so far (summary.json "faults")."""
