@@ -35,6 +35,25 @@ def test_fog_batch_yaw(roll):
     assert stamps.tolist() == [5, 6] and yaw.tolist() == [0.5, -0.5]
 
 
+@pytest.mark.parametrize("frame", ["", "f", "fog", "fog_link", "a_much_longer_fog_frame"])
+@pytest.mark.parametrize("n", [0, 1, 10])
+def test_fog_batch_fast_path_matches_rclpy(frame, n):
+    f = FogBatch()
+    f.header.stamp.sec, f.header.stamp.nanosec = 1_700_000_000, 5
+    f.header.frame_id = frame
+    f.stamps_ns = array.array("q", range(100, 100 + n))
+    f.delta_roll = array.array("d", [0.1] * n)
+    f.delta_pitch = array.array("d", [0.2] * n)
+    f.delta_yaw = array.array("d", [0.25 * k for k in range(n)])
+    raw = serialize_message(f)
+    fast = cdr._fog_batch_fast(raw)
+    assert fast is not None  # the layout rclpy writes takes the fast path
+    assert fast[0].tolist() == list(f.stamps_ns) and fast[1].tolist() == list(f.delta_yaw)
+    for cut in (len(raw) - 8, 20):
+        with pytest.raises(ValueError, match="FogBatch"):
+            cdr.fog_batch_yaw(raw[:cut]) if n else cdr.fog_batch_yaw(raw[:13])
+
+
 @pytest.mark.parametrize("frame", ["l", "laser", "lidar_front"])
 def test_laser_scan_ranges(frame):
     m = LaserScan()

@@ -253,6 +253,18 @@ class GyroBuffer:
         dy = np.asarray(dyaw_rad, dtype=np.float64).reshape(-1)
         if st.shape != dy.shape:
             raise ValueError(f"gyro batch: {st.size} stamps but {dy.size} increments")
+        n, k = self._n, st.size
+        if k == 0:
+            return
+        # the usual batch (after the last stamp, increasing, room left): three numpy calls
+        if (n + k <= self._st_buf.size and (n == 0 or st[0] > self._st_buf[n - 1])
+                and (k == 1 or bool((st[1:] > st[:-1]).all()))):
+            self._st_buf[n:n + k] = st
+            cum = self._cum_buf[n + 1:n + k + 1]
+            np.cumsum(dy, out=cum)
+            cum += self._cum_buf[n]
+            self._n = n + k
+            return
         if self._n:
             keep = st > self.last_stamp
             if not keep.all():

@@ -104,8 +104,43 @@ def laser_scan_ranges(raw: bytes) -> tuple[int, tuple[float, float, float], np.n
     return stamp, angles, r.array("f4")
 
 
+_U32 = struct.Struct("<I")
+
+
+def _fog_batch_fast(raw: bytes):
+    """The little-endian FogBatch fast path (the car's 100 Hz stream): the four sequences at
+    offsets computed from the frame id's length, or None when the bytes do not fit that layout
+    exactly (then the checked reader decides). Same result as the reader, a third of its time."""
+    if len(raw) < 16 or raw[:2] != b"\x00\x01":
+        return None
+    pos = 16 + _U32.unpack_from(raw, 12)[0]  # header: stamp (8), frame_id length (4) + bytes
+    pos += -(pos - _HDR) % 4
+    if pos + 4 > len(raw):
+        return None
+    n = _U32.unpack_from(raw, pos)[0]
+    pos += 4
+    out = []
+    for _ in range(4):  # stamps_ns, delta_roll, delta_pitch, delta_yaw: count, align 8, data
+        if out:
+            pos += -(pos - _HDR) % 4
+            if pos + 4 > len(raw) or _U32.unpack_from(raw, pos)[0] != n:
+                return None
+            pos += 4
+        if n:
+            pos += -(pos - _HDR) % 8
+        if pos + 8 * n > len(raw):
+            return None
+        out.append(pos)
+        pos += 8 * n
+    return (np.frombuffer(raw, dtype="<i8", count=n, offset=out[0]),
+            np.frombuffer(raw, dtype="<f8", count=n, offset=out[3]))
+
+
 def fog_batch_yaw(raw: bytes) -> tuple[np.ndarray, np.ndarray]:
     """pf_slam_interfaces/FogBatch bytes -> (stamps_ns (K,) int64, delta_yaw (K,) float64)."""
+    fast = _fog_batch_fast(raw)
+    if fast is not None:
+        return fast
     r = CdrReader(raw, "pf_slam_interfaces/FogBatch")
     r.header()
     stamps = r.array("i8")
