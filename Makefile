@@ -28,8 +28,8 @@ bench: setup   ## prints tables (also written to runs/bench/carmen*.md): 3 seeds
 bench-scaling: setup   ## particles 10-1000 (intel_2726) and grids 500²-4000² (intel_910): wall, RTF, peak RSS, stage split; plots in docs/img (~25 min)
 	$(BIN)/pf-slam bench scaling --data ../shared/data --out runs/bench
 
-bench-car: setup   ## three simulated 300 s car drives (simulated once, ~15 min): ATE, DR, map F1, RTF vs ceiling
-	$(BIN)/pf-slam bench car --seeds 0 1 2 --out runs/bench
+bench-car: setup   ## five simulated 300 s car drives (simulated once, ~25 min): ATE, DR, map F1, RTF vs ceiling
+	$(BIN)/pf-slam bench car --seeds 0 1 2 3 4 --out runs/bench
 	$(BIN)/pf-slam bench car --seeds 0 --out runs/bench --processes multi
 
 lock: setup   ## re-pin requirements/constraints.txt from the current venv

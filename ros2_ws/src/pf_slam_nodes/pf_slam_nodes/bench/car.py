@@ -79,6 +79,9 @@ def bench(out_dir: Path, seeds=(0,), duration_s: float = 300.0, processes: str =
         t_est, p_est = read_trajectory(run_dir / "trajectory.tum")
         t_dr, p_dr = dead_reckoning(data)
         write_tum(run_dir / "dead_reckoning.tum", t_dr / 1e9, p_dr)
+        t_dc, p_dc = dead_reckoning(data, gyro_rest_bias=True)
+        write_tum(run_dir / "dead_reckoning_rest_bias.tum", t_dc / 1e9, p_dc)
+        true_bias = _true_fog_bias_rad_s(data)
         eo, er, eorig = read_map(run_dir / "map.yaml")
         go, gr, gorig = read_map(data / "ground_truth" / "occupancy.yaml")
         f1 = metrics.map_f1(eo, er, eorig[:2], go, gr, gorig[:2])
@@ -87,7 +90,10 @@ def bench(out_dir: Path, seeds=(0,), duration_s: float = 300.0, processes: str =
             "seed": seed, "duration_s": s["bag_duration_s"], "processes": processes,
             "particles": s["particles"], "scans": s["scans_processed"], "dropped": s["scans_dropped"],
             "corrected": s["scans_corrected"], "ate_m": _ate(t_est, p_est, t_gt, p_gt),
-            "dr_ate_m": _ate(t_dr / 1e9, p_dr, t_gt, p_gt), "map_f1": f1["f1"],
+            "dr_ate_m": _ate(t_dr / 1e9, p_dr, t_gt, p_gt),
+            "dr_rest_bias_ate_m": _ate(t_dc / 1e9, p_dc, t_gt, p_gt),
+            "gyro_bias_rad_s": s.get("gyro", {}).get("bias_rad_s"), "true_gyro_bias_rad_s": true_bias,
+            "map_f1": f1["f1"],
             "map_precision": f1["precision"], "map_recall": f1["recall"],
             "wall_s": s["wall_time_s"], "rtf": s["real_time_factor"],
             "ceiling_rtf": ceiling["real_time_factor"],
@@ -96,14 +102,32 @@ def bench(out_dir: Path, seeds=(0,), duration_s: float = 300.0, processes: str =
     return rows
 
 
+def _true_fog_bias_rad_s(data: Path) -> float | None:
+    """The simulator's FOG yaw bias (rad/s) from ground_truth/sim_info.yaml (None for real data)."""
+    info = data / "ground_truth" / "sim_info.yaml"
+    if not info.is_file():
+        return None
+    import yaml
+    per_sample = yaml.safe_load(info.read_text()).get("fog_yaw_bias_rad_per_sample")
+    t = np.loadtxt(data / "sensor_data" / "fog.csv", delimiter=",", usecols=0, dtype=np.int64, ndmin=1)
+    return None if per_sample is None or t.size < 2 else float(per_sample) / (float(np.mean(np.diff(t))) / 1e9)
+
+
+def _urad(v: float | None) -> str:
+    return "–" if v is None else f"{1e6 * v:.0f}"
+
+
 def format_table(rows: list[dict]) -> str:
-    lines = ["| seed | drive s | particles | processes | ATE m | dead reckoning ATE m | ratio | map F1 "
-             "(P / R) | wall s | RTF | replay-only RTF | of ceiling | dropped |",
-             "|---:|---:|---:|---|---:|---:|---:|---|---:|---:|---:|---:|---:|"]
+    lines = ["| seed | drive s | particles | processes | ATE m | dead reckoning ATE m | ratio | DR, FOG bias at "
+             "rest, ATE m | FOG bias est. / true µrad/s | map F1 (P / R) | wall s | RTF | replay-only RTF | "
+             "of ceiling | dropped |",
+             "|---:|---:|---:|---|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|"]
     for r in rows:
         lines.append(
             f"| {r['seed']} | {r['duration_s']:.0f} | {r['particles']} | {r['processes']} | {r['ate_m']:.3f} | "
-            f"{r['dr_ate_m']:.3f} | {r['dr_ate_m'] / max(r['ate_m'], 1e-9):.1f}× | {r['map_f1']:.3f} "
+            f"{r['dr_ate_m']:.3f} | {r['dr_ate_m'] / max(r['ate_m'], 1e-9):.1f}× | "
+            f"{r['dr_rest_bias_ate_m']:.3f} | {_urad(r['gyro_bias_rad_s'])} / {_urad(r['true_gyro_bias_rad_s'])} | "
+            f"{r['map_f1']:.3f} "
             f"({r['map_precision']:.2f} / {r['map_recall']:.2f}) | {r['wall_s']:.1f} | {r['rtf']:.1f}× | "
             f"{r['ceiling_rtf']:.1f}× | {100 * r['ratio_to_ceiling']:.0f} % | {r['dropped']} |")
     return "\n".join(lines)
