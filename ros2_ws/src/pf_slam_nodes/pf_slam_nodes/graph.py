@@ -736,7 +736,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         "snapshots_written": rec.snapshots_written,
         "snapshots_skipped": rec.snapshots_skipped,
         "faults": rec.faults(),
-        **{k: v for k, v in rec.node_status.get("predictor", {}).items() if k == "gyro"},
+        **({"gyro": gyro} if (gyro := rec.node_status.get("predictor", {}).get("gyro")) else {}),
         "complete": stopped_by is None,
         **({} if stopped_by is None else {"stopped_by": stopped_by}),
         **extra,

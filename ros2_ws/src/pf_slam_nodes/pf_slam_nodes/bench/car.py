@@ -23,20 +23,30 @@ from . import stage_table
 KAIST_YAML = Path(__file__).resolve().parents[2] / "config" / "kaist.yaml"
 
 
-def dead_reckoning(dataset_dir: str | Path, gyro_rest_bias: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def odometry_streams(dataset_dir: str | Path) -> dict:
+    """The drive's encoder and FOG CSVs and encoder parameters, read once: ``enc`` (K, 3) int64
+    (stamp, left, right counts), ``fog_t`` (F,) int64 ns, ``fog_yaw`` (F,) rad, ``params``."""
+    d = Path(dataset_dir)
+    fog = np.loadtxt(d / "sensor_data" / "fog.csv", delimiter=",", usecols=(0, 3), ndmin=1,
+                     dtype={"names": ("t", "yaw"), "formats": ("i8", "f8")})
+    return {"enc": np.loadtxt(d / "sensor_data" / "encoder.csv", delimiter=",", dtype=np.int64, ndmin=2),
+            "fog_t": fog["t"], "fog_yaw": fog["yaw"],
+            "params": parse_encoder_params(d / "param" / "EncoderParameter.txt")}
+
+
+def dead_reckoning(dataset_dir: str | Path, gyro_rest_bias: bool = False,
+                   streams: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Encoders + FOG integrated exactly as the predictor does (no noise, no scans); with
     ``gyro_rest_bias``, the FOG's bias calibrated at standstill (the predictor's
     ``wheels.gyro_rest_bias``), else the raw sensors (the baseline of the car targets).
+    ``streams``: :func:`odometry_streams` of the drive, if already read.
 
     Returns ``(stamps_ns (K,), poses (K, 3))`` at the encoder stamps.
     """
-    d = Path(dataset_dir)
-    enc = np.loadtxt(d / "sensor_data" / "encoder.csv", delimiter=",", dtype=np.int64, ndmin=2)
-    fog_t = np.loadtxt(d / "sensor_data" / "fog.csv", delimiter=",", usecols=0, dtype=np.int64, ndmin=1)
-    fog_yaw = np.loadtxt(d / "sensor_data" / "fog.csv", delimiter=",", usecols=3, ndmin=1)
-    p = parse_encoder_params(d / "param" / "EncoderParameter.txt")
+    s = streams or odometry_streams(dataset_dir)
+    enc, p = s["enc"], s["params"]
     gyro = GyroBuffer()
-    gyro.add(fog_t, fog_yaw)
+    gyro.add(s["fog_t"], s["fog_yaw"])
     wheels = WheelOdometryIntegrator(p["left_wheel_diameter_m"], p["right_wheel_diameter_m"], p["wheel_base_m"],
                                      gyro_rest_bias=gyro_rest_bias)
     k = 2.0 * math.pi / p["resolution"]
@@ -77,11 +87,12 @@ def bench(out_dir: Path, seeds=(0,), duration_s: float = 300.0, processes: str =
                   overrides=overrides, progress=False, snapshot_every=0)
         t_gt, p_gt = read_trajectory(data / "ground_truth" / "poses.csv")
         t_est, p_est = read_trajectory(run_dir / "trajectory.tum")
-        t_dr, p_dr = dead_reckoning(data)
+        streams = odometry_streams(data)
+        t_dr, p_dr = dead_reckoning(data, streams=streams)
         write_tum(run_dir / "dead_reckoning.tum", t_dr / 1e9, p_dr)
-        t_dc, p_dc = dead_reckoning(data, gyro_rest_bias=True)
+        t_dc, p_dc = dead_reckoning(data, gyro_rest_bias=True, streams=streams)
         write_tum(run_dir / "dead_reckoning_rest_bias.tum", t_dc / 1e9, p_dc)
-        true_bias = _true_fog_bias_rad_s(data)
+        true_bias = _true_fog_bias_rad_s(data, streams["fog_t"])
         eo, er, eorig = read_map(run_dir / "map.yaml")
         go, gr, gorig = read_map(data / "ground_truth" / "occupancy.yaml")
         f1 = metrics.map_f1(eo, er, eorig[:2], go, gr, gorig[:2])
@@ -102,14 +113,14 @@ def bench(out_dir: Path, seeds=(0,), duration_s: float = 300.0, processes: str =
     return rows
 
 
-def _true_fog_bias_rad_s(data: Path) -> float | None:
-    """The simulator's FOG yaw bias (rad/s) from ground_truth/sim_info.yaml (None for real data)."""
+def _true_fog_bias_rad_s(data: Path, t: np.ndarray) -> float | None:
+    """The simulator's FOG yaw bias (rad/s) from ground_truth/sim_info.yaml and the FOG's stamps
+    ``t`` (ns; the bias is per sample), or None for real data."""
     info = data / "ground_truth" / "sim_info.yaml"
     if not info.is_file():
         return None
     import yaml
     per_sample = yaml.safe_load(info.read_text()).get("fog_yaw_bias_rad_per_sample")
-    t = np.loadtxt(data / "sensor_data" / "fog.csv", delimiter=",", usecols=0, dtype=np.int64, ndmin=1)
     return None if per_sample is None or t.size < 2 else float(per_sample) / (float(np.mean(np.diff(t))) / 1e9)
 
 

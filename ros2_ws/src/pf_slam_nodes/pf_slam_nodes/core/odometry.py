@@ -161,9 +161,8 @@ class WheelOdometryIntegrator:
             raise ValueError(f"rest_min_s must be > 0, got {rest_min_s!r}")
         self.gyro_rest_bias = bool(gyro_rest_bias)
         self.rest_min_s = float(rest_min_s)
-        self._rest_run_s = 0.0                       # length of the current rest run
-        self._rest_yaw = self._rest_s = 0.0          # the part of it not yet committed
-        self._bias_yaw = self._bias_s = 0.0          # committed rest time and the gyro's yaw over it
+        self._run_yaw = self._run_s = 0.0    # the current rest run: gyro yaw and length
+        self._bias_yaw = self._bias_s = 0.0  # the finished rests of rest_min_s or longer
         self.jumps = 0
         self.pose = np.zeros(3)
         self._last: Optional[tuple[float, float]] = None
@@ -175,30 +174,34 @@ class WheelOdometryIntegrator:
         self.use_gyro = True
         self._pending_gyro_yaw += float(dyaw_rad)
 
+    def _rest(self) -> tuple[float, float]:
+        """(gyro yaw, seconds) over the rests that count: the finished ones and the current run
+        once it is long enough (a rest, not a wheel that did not tick while creeping)."""
+        if self._run_s >= self.rest_min_s:
+            return self._bias_yaw + self._run_yaw, self._bias_s + self._run_s
+        return self._bias_yaw, self._bias_s
+
     @property
     def gyro_bias_rad_s(self) -> float:
         """The gyro's yaw bias estimated at rest (rad/s; 0 before the first rest)."""
-        return self._bias_yaw / self._bias_s if self._bias_s > 0 else 0.0
+        yaw, seconds = self._rest()
+        return yaw / seconds if seconds > 0 else 0.0
 
     @property
     def rest_s(self) -> float:
         """Rest time the bias estimate is based on (s)."""
-        return self._bias_s
+        return self._rest()[1]
 
     def _gyro_yaw(self, yaw: float, rest: bool, dt_s: Optional[float]) -> float:
         """A step's yaw from the gyro's increments: zero at rest, bias-corrected when moving."""
         if not self.gyro_rest_bias or dt_s is None:
             return yaw
         if rest:
-            self._rest_yaw += yaw
-            self._rest_s += dt_s
-            self._rest_run_s += dt_s
-            if self._rest_run_s >= self.rest_min_s:  # long enough: a rest, not a wheel that did not tick
-                self._bias_yaw += self._rest_yaw   # (the run so far, then each further rest step)
-                self._bias_s += self._rest_s
-                self._rest_yaw = self._rest_s = 0.0
+            self._run_yaw += yaw
+            self._run_s += dt_s
             return 0.0
-        self._rest_yaw = self._rest_s = self._rest_run_s = 0.0
+        self._bias_yaw, self._bias_s = self._rest()  # the run (if it counts) ends here
+        self._run_yaw = self._run_s = 0.0
         return yaw - self.gyro_bias_rad_s * dt_s
 
     def step(self, left_rad: float, right_rad: float, dt_s: Optional[float] = None) -> np.ndarray:

@@ -261,7 +261,6 @@ class Predictor(Node):
             out["fog_out_of_order"] = self.gyro.out_of_order
         return out
 
-
     def _on_updated(self, msg: ParticleArray) -> None:
         if msg.update and msg.scan_index == self.waiting_for:
             self.stage.set_corrected(*convert.msg_to_particles(msg))
