@@ -333,7 +333,11 @@ class _Recorder:
         self._writer_error: Exception | None = None
         self.snapshots_written = 0
         self.snapshots_skipped = 0
-        node.create_subscription(PoseStamped, topics.POSE, self._on_pose, qos.pipeline(), raw=True)
+        #: more consumers of the raw /pose bytes (the result recorder): one subscription, one
+        #: delivery per pose at the car's 100 Hz instead of one per consumer
+        self.pose_listeners: list = []
+        self.pose_subscription = node.create_subscription(PoseStamped, topics.POSE, self._on_pose, qos.pipeline(),
+                                                          raw=True)
         node.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         node.create_subscription(OccupancyGrid, topics.MAP, self._on_map, qos.latched())
         node.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
@@ -377,6 +381,8 @@ class _Recorder:
         self.updates += int(msg.update)
 
     def _on_pose(self, raw: bytes) -> None:
+        for listener in self.pose_listeners:
+            listener(raw)
         stamp, pose = cdr.pose_stamped_xy_yaw(raw)
         self.stamps.append(stamp)
         self.poses.append(pose)
@@ -449,7 +455,8 @@ class ResultRecorder:
     NAME = "pf_slam_result_recorder"
 
     def __init__(self, node, path: Path, scan_topic: str, map_every_s: float, texture: bool = False,
-                 latched_tf_static: bool = True) -> None:
+                 latched_tf_static: bool = True, pose_feed: "_Recorder | None" = None) -> None:
+        """``pose_feed``: take /pose from that recorder's subscription instead of a second one."""
         from rclpy.qos import QoSProfile
 
         from .io.bag import open_writer
@@ -479,6 +486,10 @@ class ResultRecorder:
         for topic, msgtype, profile, wait in streams:
             self.bag.add_connection(topic, msgtype, latched=profile.durability == qos.latched().durability)
             cb = self._on_map if topic == "/" + topics.MAP else self._writer_for(topic, msgtype)
+            if topic == "/" + topics.POSE and pose_feed is not None:
+                pose_feed.pose_listeners.append(cb)
+                needs.append((pose_feed.pose_subscription, wait))
+                continue
             needs.append((node.create_subscription(_message_class(msgtype), topic, cb, profile, raw=True), wait))
         announce_when_matched(node, needs, name=self.NAME)
 
@@ -634,7 +645,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         if record:
             result = ResultRecorder(rec_node, out / "result.mcap", inputs["scan"],
                                     record_map_every_s if record_map_every_s is not None else bag_duration_s / 20,
-                                    texture)
+                                    texture, pose_feed=rec)
         texture_node = None
         if processes == "single":
             for name in node_names:

@@ -182,14 +182,14 @@ def announce_when_matched(node: Node, needs: list[tuple[Any, int]], period_s: fl
 
 class ScanQueue:
     """Serialized scans in arrival order; a scan is deserialized only when it is taken. The
-    correlator and the mapper need only the scans that are corrected (the car's lidar runs at
-    100 Hz, corrections every ~2 m), so most scans are dropped unread.
+    correlator and the mapper receive only the scans that are corrected (pf_slam/scan_corrected,
+    forwarded by the predictor).
 
-    Scans are asked for by the predictor's number (``scan_index``) and stamp. Without losses the
-    n-th scan here is the predictor's n-th; a replay faster than the graph can overflow the
-    queues, and then the nodes may lose different scans: the stamp finds the right one (the
-    nearest to where it is expected), or tells that it was lost here (a later-stamped scan has
-    arrived and none matches), so a correction never uses another scan than its own.
+    Scans are asked for by their number in the stream (the n-th corrected scan) and stamp.
+    Without losses the n-th scan here is the n-th asked for; a replay faster than the graph can
+    overflow the queues, and then messages may be lost on the way: the stamp finds the right scan
+    (the nearest to where it is expected), or tells that it was lost here (a later-stamped scan
+    has arrived and none matches), so a correction never uses another scan than its own.
     """
 
     def __init__(self) -> None:

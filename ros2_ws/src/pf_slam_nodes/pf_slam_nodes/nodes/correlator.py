@@ -1,8 +1,8 @@
 """correlator: corrects each predicted particle set against the map with the scan.
 
-Subscribes: scan (LaserScan, kept serialized; only the scans that are corrected are
-deserialized), particles/predicted (ParticleArray: one per correction, plus the pass-through
-end-of-run set), pf_slam/grid (after each integration, the mapper's patch: occupancy of the
+Subscribes: pf_slam/scan_corrected (LaserScan: the predictor forwards the bytes of exactly the
+scans it sends to be corrected; the n-th belongs to the n-th set with update=true), particles/
+predicted (ParticleArray: one per correction, plus the pass-through end-of-run set), pf_slam/grid (after each integration, the mapper's patch: occupancy of the
 cells that scan touched). Publishes: particles/updated (one per predicted set, carrying the
 pose estimate: the best particle or the weighted mean, filter.pose_estimate).
 
@@ -43,7 +43,7 @@ class Correlator(Node):
         self.pub_updated = self.create_publisher(ParticleArray, topics.PARTICLES_UPDATED, qos.pipeline())
         # predictor, mapper (+ observers that must see every set, e.g. a recorder)
         announce_when_matched(self, [(self.pub_updated, 2 + param(self, "expected_observers", 0))])
-        self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline(), raw=True)
+        self.create_subscription(LaserScan, topics.SCAN_CORRECTED, self._on_scan, qos.pipeline(), raw=True)
         self.create_subscription(ParticleArray, topics.PARTICLES_PREDICTED, self._on_predicted, qos.pipeline())
         self.create_subscription(OccupancyGrid, topics.GRID, self._on_grid, qos.pipeline(10))
         status_publisher(self, lambda: {"faults": {"scans_lost_correlator": self.scans.lost}})
@@ -63,20 +63,22 @@ class Correlator(Node):
         self._drain()
 
     def _drain(self) -> None:
-        # scans and sets both arrive in scan order; a set names its scan by index
-        while self.predicted and self.scans.has(self.predicted[0].scan_index,
-                                                convert.stamp_to_ns(self.predicted[0].header.stamp)):
+        # scans and sets both arrive in scan order; the n-th scan is the n-th update's
+        while self.predicted:
             pa = self.predicted[0]
-            if pa.update and self.grids_received < self.corrections_sent:
-                return  # the map of the previous correction is not here yet
-            self.predicted.popleft()
             stamp = convert.stamp_to_ns(pa.header.stamp)  # the scan's
-            scan = self.scans.take(pa.scan_index, stamp)
-            if scan is None:
-                self.get_logger().warn(f"scan {pa.scan_index} was lost on the way here (a replay faster than "
-                                       "the graph): its set is not corrected", throttle_duration_sec=5.0)
+            if pa.update:
+                if self.grids_received < self.corrections_sent:
+                    return  # the map of the previous correction is not here yet
+                if not self.scans.has(self.corrections_sent, stamp):
+                    return
+            self.predicted.popleft()
             particles, log_w = convert.msg_to_particles(pa)
             if pa.update:
+                scan = self.scans.take(self.corrections_sent, stamp)
+                if scan is None:
+                    self.get_logger().warn(f"scan {pa.scan_index} was lost on the way here (a replay faster "
+                                           "than the graph): its set is not corrected", throttle_duration_sec=5.0)
                 res = self.stage.correct(particles, log_w, *scan_fields(scan))
                 particles, log_w, pose = res.particles, res.log_weights, res.pose
                 self.corrections_sent += 1

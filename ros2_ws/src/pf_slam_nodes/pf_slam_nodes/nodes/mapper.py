@@ -1,7 +1,7 @@
 """mapper: integrates each corrected scan into the log-odds grid and publishes the map.
 
-Subscribes: scan (LaserScan, kept serialized; only corrected scans are deserialized),
-particles/updated (ParticleArray: every corrected set, and the end-of-run pass-through set),
+Subscribes: pf_slam/scan_corrected (LaserScan: the bytes of exactly the scans that are corrected,
+forwarded by the predictor; the n-th belongs to the n-th set with update=true), particles/updated (ParticleArray: every corrected set, and the end-of-run pass-through set),
 pf_slam/replay_status (messages per topic, at the end of the bag).
 Publishes: pf_slam/grid (after every integration, the patch of cells the scan touched, for
 the correlator), map + map_metadata (latched, on a timer and once more after the last scan),
@@ -46,6 +46,7 @@ class Mapper(Node):
         self.scan_topic = self.resolve_topic_name(topics.SCAN)
         self.scans = ScanQueue()
         self.updates: deque[ParticleArray] = deque()
+        self.integrated = 0  # sets with update=true taken (= corrected scans taken)
         self.last_index = -1
         self.total: int | None = None
         self.last_stamp = 0
@@ -58,7 +59,7 @@ class Mapper(Node):
         self.pub_tf_static = (self.create_publisher(TFMessage, topics.TF_STATIC, qos.latched())
                               if param(self, "publish_sensor_tf", True) else None)
         announce_when_matched(self, [(self.pub_grid, 1)])  # the correlator
-        self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline(), raw=True)
+        self.create_subscription(LaserScan, topics.SCAN_CORRECTED, self._on_scan, qos.pipeline(), raw=True)
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
         self.create_timer(period, self.publish_map)
@@ -77,18 +78,21 @@ class Mapper(Node):
         self._maybe_finish()
 
     def _drain(self) -> None:
-        while self.updates and self.scans.has(self.updates[0].scan_index,
-                                              convert.stamp_to_ns(self.updates[0].header.stamp)):
-            pa = self.updates.popleft()
+        while self.updates:
+            pa = self.updates[0]
             stamp = convert.stamp_to_ns(pa.header.stamp)  # the scan's
-            scan = self.scans.take(pa.scan_index, stamp)
-            if scan is None:
-                self.get_logger().warn(f"scan {pa.scan_index} was lost on the way here (a replay faster than "
-                                       "the graph): not mapped", throttle_duration_sec=5.0)
+            if pa.update and not self.scans.has(self.integrated, stamp):
+                return
+            self.updates.popleft()
             pose = np.asarray(pa.pose, dtype=np.float64)
-            if self.pub_tf_static is not None and scan is not None:
-                self._publish_sensor_tf(scan.header.frame_id, stamp)
             if pa.update:
+                scan = self.scans.take(self.integrated, stamp)
+                self.integrated += 1
+                if scan is None:
+                    self.get_logger().warn(f"scan {pa.scan_index} was lost on the way here (a replay faster "
+                                           "than the graph): not mapped", throttle_duration_sec=5.0)
+                elif self.pub_tf_static is not None:
+                    self._publish_sensor_tf(scan.header.frame_id, stamp)
                 patch = self.stage.integrate(pose, *scan_fields(scan))
                 self.pub_grid.publish(convert.grid_to_msg(patch.occupancy, patch.resolution,
                                                           patch.origin, stamp, self.map_frame))

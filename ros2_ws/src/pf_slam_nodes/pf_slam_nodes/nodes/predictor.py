@@ -1,10 +1,11 @@
 """predictor: owns the particle set between scans and moves it with the motion model.
 
-Subscribes: scan (LaserScan; only its stamp is read, from the serialized bytes), odom
+Subscribes: scan (LaserScan; only its stamp and ranges are read, from the serialized bytes), odom
 (nav_msgs/Odometry) or encoders (JointState wheel angles, rad) with optional fog (FogBatch or
 Vector3Stamped yaw increments, which then replace the wheels' yaw), particles/updated (the
 corrected set), pf_slam/replay_status (end of the bag). Publishes: pose (PoseStamped, map
-frame, exactly one per scan, in scan order), particles/predicted (one per correction), /tf
+frame, exactly one per scan, in scan order), particles/predicted (one per correction),
+pf_slam/scan_corrected (the bytes of each scan it sends to be corrected, before its set), /tf
 (odom_frame -> base_frame: the dead-reckoned odometry at every scan's stamp, REP 105).
 
 Per scan, in order: the odometry pose at the scan stamp is looked up; if the robot moved less
@@ -57,7 +58,7 @@ class Predictor(Node):
         if source not in ("odom", "encoders"):
             raise ValueError(f"parameter 'odometry_source' must be 'odom' or 'encoders', got {source!r}")
         self.odom = OdometryBuffer(param(self, "odom_sync", "interpolate"))
-        self.scans: deque[tuple[int, int, bool]] = deque()  # (scan_index, stamp_ns, usable)
+        self.scans: deque[tuple[int, int, bool, bytes]] = deque()  # (scan_index, stamp_ns, usable, raw)
         self.checks = ScanChecks(param(self, "time_gap_s", 60.0))
         self.odometry_nonfinite = 0
         self.poses_published = 0
@@ -76,12 +77,14 @@ class Predictor(Node):
         self.scan_topic = self.resolve_topic_name(topics.SCAN)
         self.pub = self.create_publisher(ParticleArray, topics.PARTICLES_PREDICTED, qos.pipeline())
         self.pub_pose = self.create_publisher(PoseStamped, topics.POSE, qos.pipeline())
+        self.pub_scan = self.create_publisher(LaserScan, topics.SCAN_CORRECTED, qos.pipeline())
         self.pose_cdr = cdr.PoseStampedWriter(self.map_frame)  # one pose per scan: published as bytes
         self._init_odom_tf()
-        # the correlator; bag_replay (paces on pose) + observers that must see every pose
-        announce_when_matched(self, [(self.pub, 1),
-                                     (self.pub_pose, 1 + param(self, "expected_observers", 0))])
-        self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline(), raw=True)
+        sub_scan = self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline(), raw=True)
+        # the correlator (+ the mapper for the scans); bag_replay (paces on pose) + observers
+        # that must see every pose; the scans' source (the replay starts once this is matched)
+        announce_when_matched(self, [(self.pub, 1), (self.pub_scan, 2),
+                                     (self.pub_pose, 1 + param(self, "expected_observers", 0)), (sub_scan, 1)])
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
         if source == "odom":
@@ -233,7 +236,7 @@ class Predictor(Node):
             stamp, usable, faults = self.checks.last_stamp_ns or 0, False, self.checks.unreadable(exc)
         for kind, text in faults:
             self._fault(kind, f"scan {self.scan_count}: {text}")
-        self.scans.append((self.scan_count, stamp, usable))
+        self.scans.append((self.scan_count, stamp, usable, raw))
         self.scan_count += 1
         self._drain()
 
@@ -285,7 +288,7 @@ class Predictor(Node):
         if hasattr(self, "encoders"):
             self._integrate_encoders()
         while self.scans:
-            index, stamp, usable = self.scans[0]
+            index, stamp, usable, raw = self.scans[0]
             # a scan whose exact odometry never comes must not block the ones behind it
             # end of stream: every odometry message of the bag is here, none will follow
             final = (self.odom_expected is not None and self.odom_received >= self.odom_expected) or (
@@ -312,16 +315,17 @@ class Predictor(Node):
                 break
             self.scans.popleft()
             self._publish_odom_tf(odom, stamp)
-            self._predict(index, stamp, odom, usable)
+            self._predict(index, stamp, odom, usable, raw)
         self.odom.trim()
         self._maybe_send_end()
 
-    def _predict(self, index: int, stamp: int, odom: np.ndarray, usable: bool = True) -> None:
+    def _predict(self, index: int, stamp: int, odom: np.ndarray, usable: bool, raw: bytes) -> None:
         if not usable:  # a scan the correlator cannot use: posed from odometry
             self._pass_through(index, stamp, odom, self.stage.gate(odom)[1])
             return
         update, delta = self.stage.predict(odom)
         if update:
+            self.pub_scan.publish(raw)
             self.pub.publish(convert.particles_to_msg(
                 self.stage.particles, self.stage.log_weights, stamp_ns=stamp,
                 frame_id=self.map_frame, scan_index=index, update=True, odom_pose=odom))

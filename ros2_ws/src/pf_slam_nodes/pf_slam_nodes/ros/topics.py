@@ -15,6 +15,9 @@ POSE = "pose"
 MAP = "map"
 MAP_METADATA = "map_metadata"
 PATH = "path"
+# predictor -> correlator, mapper: the scans that are corrected, as received (the car's lidar
+# runs at 100 Hz, corrections every ~2 m: they need 1 scan in 20)
+SCAN_CORRECTED = "pf_slam/scan_corrected"
 GRID = "pf_slam/grid"  # mapper -> correlator: the occupancy grid after every integration
 REPLAY_STATUS = "pf_slam/replay_status"  # bag_replay -> all: end of bag
 READY = "pf_slam/ready"  # each stage, once its outputs are matched: the replay may start
