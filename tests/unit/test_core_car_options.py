@@ -71,3 +71,25 @@ def test_skip_unknown_drops_points_on_unobserved_cells():
     assert away.sum() < keep.sum()
     # the default stage keeps no mask
     assert CorrectionStage(fcfg, gcfg, CorrelationConfig(), ResampleConfig()).known is None
+
+
+def test_gains_take_a_fraction_of_the_match_per_axis_and_score_there():
+    true_pose, pts, grid = _scene()
+    start = compose(true_pose, np.array([0.1, -0.05, 0.02]))[None]
+    base = dict(search_x_m=0.2, search_y_m=0.2, search_yaw_rad=0.1)
+    field = build_likelihood_field_from_map(grid.to_occupancy_map(), CorrelationConfig(**base))
+    full, _ = correlate(start, pts, field, CorrelationConfig(**base))
+    half, half_score = correlate(start, pts, field, CorrelationConfig(**base, gain_xy=0.5, gain_yaw=0.0))
+    np.testing.assert_allclose(half[0, :2], start[0, :2] + 0.5 * (full[0, :2] - start[0, :2]), atol=1e-12)
+    assert half[0, 2] == pytest.approx(start[0, 2])  # gain_yaw 0: the predicted (gyro) yaw is kept
+    # the weight update is the score where the particle now is, not at its match
+    _, there = correlate(half, pts, field, CorrelationConfig(search_x_m=0, search_y_m=0, search_yaw_rad=0,
+                                                            refine_iterations=0))
+    assert half_score[0] == pytest.approx(there[0])
+    none, _ = correlate(start, pts, field, CorrelationConfig(**base, gain_xy=0.0, gain_yaw=0.0))
+    np.testing.assert_allclose(none, start, atol=1e-12)
+    for bad in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="gain_xy"):
+            CorrelationConfig(gain_xy=bad)
+    with pytest.raises(ValueError, match="gain_yaw"):
+        CorrelationConfig(gain_yaw=2.0)

@@ -273,6 +273,13 @@ class CorrelationConfig(_ConfigBase):
         penalised score is its weight update. So a shift must buy its cost in scan likelihood,
         and weakly observable shifts (along a street) stay at the odometry. 0 disables the term
         of that axis; both 0 (default): no prior, the CARMEN behaviour.
+    gain_xy, gain_yaw : float
+        Fraction in ``[0, 1]`` of its match's shift that a particle takes: ``pose = predicted +
+        gain * (matched - predicted)`` per axis (translation, yaw), a fixed-gain fusion of the
+        odometry and the match; the particle's weight update is its score at that pose. 1
+        (default) moves it onto the match (the CARMEN behaviour). Below 1 for odometry that is
+        better between corrections than a match against the map built moments ago (the car's
+        calibrated wheels and FOG): the match then bounds the drift without adding its noise.
     """
 
     search_x_m: float = 0.2
@@ -293,8 +300,14 @@ class CorrelationConfig(_ConfigBase):
     skip_unknown: bool = False
     prior_sigma_xy_m: float = 0.0
     prior_sigma_yaw_rad: float = 0.0
+    gain_xy: float = 1.0
+    gain_yaw: float = 1.0
 
     def __post_init__(self) -> None:
+        for name in ("gain_xy", "gain_yaw"):
+            v = getattr(self, name)
+            if not 0.0 <= v <= 1.0:
+                raise ValueError(f"{name} must be in [0, 1], got {v!r}")
         if not isinstance(self.skip_unknown, bool):
             raise ValueError(f"skip_unknown must be a bool, got {self.skip_unknown!r}")
         _check_nonneg("prior_sigma_xy_m", self.prior_sigma_xy_m)

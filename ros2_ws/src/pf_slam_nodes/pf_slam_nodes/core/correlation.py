@@ -694,4 +694,21 @@ def correlate(
         stay = score0 >= score
         best[stay] = poses[stay]
         score = np.where(stay, score0, score)
+    if cfg.gain_xy < 1.0 or cfg.gain_yaw < 1.0:
+        best, score = _blend(poses, best, refine_pts, field, cfg)
     return best, score
+
+
+def _blend(predicted: np.ndarray, matched: np.ndarray, pts: np.ndarray, field: LikelihoodField,
+           cfg: CorrelationConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The poses a fraction ``cfg.gain_*`` of the way from ``predicted`` to ``matched`` and
+    their scores (as :func:`correlate`'s, prior included)."""
+    step = matched - predicted
+    step[:, 2] = (step[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    out = predicted + step * np.array([cfg.gain_xy, cfg.gain_xy, cfg.gain_yaw])
+    out[:, 2] = (out[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    d = _distances(out, pts, field, cfg.precision)
+    score = -0.5 * _rowdot(d, d) / (cfg.sigma_m ** 2)
+    if cfg.prior_sigma_xy_m > 0 or cfg.prior_sigma_yaw_rad > 0:
+        score -= _prior_cost(out, predicted, cfg)
+    return out, score
