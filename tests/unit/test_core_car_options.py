@@ -35,18 +35,30 @@ def _scene():
     return true_pose, scan_to_points(ranges, ang, 0.1, 19.0), grid
 
 
-def test_motion_prior_keeps_weak_shifts_and_never_scores_below_staying():
+def _offset_start():
+    """The scene's true pose and points, a start pose 0.1 m / -0.05 m / 0.02 rad off it
+    (``(1, 3)``), the search window ``base`` and the map's likelihood field."""
     true_pose, pts, grid = _scene()
     start = compose(true_pose, np.array([0.1, -0.05, 0.02]))[None]
     base = dict(search_x_m=0.2, search_y_m=0.2, search_yaw_rad=0.1)
-    field = build_likelihood_field_from_map(grid.to_occupancy_map(), CorrelationConfig(**base))
+    return true_pose, pts, start, base, build_likelihood_field_from_map(grid.to_occupancy_map(),
+                                                                        CorrelationConfig(**base))
+
+
+def _score_in_place(poses, pts, field):
+    """The score of particles left where they are (no window, no refinement, no prior)."""
+    return correlate(poses, pts, field, CorrelationConfig(search_x_m=0, search_y_m=0, search_yaw_rad=0,
+                                                          refine_iterations=0))[1]
+
+
+def test_motion_prior_keeps_weak_shifts_and_never_scores_below_staying():
+    true_pose, pts, start, base, field = _offset_start()
     free, _ = correlate(start, pts, field, CorrelationConfig(**base))
     assert not np.allclose(free, start)  # without a prior the match moves towards the truth
     tight = CorrelationConfig(**base, prior_sigma_xy_m=1e-4, prior_sigma_yaw_rad=1e-5)
     kept, kept_score = correlate(start, pts, field, tight)
     np.testing.assert_array_equal(kept, start)  # any shift costs more than it gains
-    _, stay = correlate(start, pts, field, CorrelationConfig(search_x_m=0, search_y_m=0, search_yaw_rad=0,
-                                                            refine_iterations=0))
+    stay = _score_in_place(start, pts, field)
     assert kept_score[0] == pytest.approx(stay[0])
     loose = CorrelationConfig(**base, prior_sigma_xy_m=0.5, prior_sigma_yaw_rad=0.5)
     moved, moved_score = correlate(start, pts, field, loose)
@@ -74,18 +86,13 @@ def test_skip_unknown_drops_points_on_unobserved_cells():
 
 
 def test_gains_take_a_fraction_of_the_match_per_axis_and_score_there():
-    true_pose, pts, grid = _scene()
-    start = compose(true_pose, np.array([0.1, -0.05, 0.02]))[None]
-    base = dict(search_x_m=0.2, search_y_m=0.2, search_yaw_rad=0.1)
-    field = build_likelihood_field_from_map(grid.to_occupancy_map(), CorrelationConfig(**base))
+    _, pts, start, base, field = _offset_start()
     full, _ = correlate(start, pts, field, CorrelationConfig(**base))
     half, half_score = correlate(start, pts, field, CorrelationConfig(**base, gain_xy=0.5, gain_yaw=0.0))
     np.testing.assert_allclose(half[0, :2], start[0, :2] + 0.5 * (full[0, :2] - start[0, :2]), atol=1e-12)
     assert half[0, 2] == pytest.approx(start[0, 2])  # gain_yaw 0: the predicted (gyro) yaw is kept
     # the weight update is the score where the particle now is, not at its match
-    _, there = correlate(half, pts, field, CorrelationConfig(search_x_m=0, search_y_m=0, search_yaw_rad=0,
-                                                            refine_iterations=0))
-    assert half_score[0] == pytest.approx(there[0])
+    assert half_score[0] == pytest.approx(_score_in_place(half, pts, field)[0])
     none, _ = correlate(start, pts, field, CorrelationConfig(**base, gain_xy=0.0, gain_yaw=0.0))
     np.testing.assert_allclose(none, start, atol=1e-12)
     for bad in (-0.1, 1.5, float("nan")):

@@ -455,7 +455,7 @@ class ResultRecorder:
     NAME = "pf_slam_result_recorder"
 
     def __init__(self, node, path: Path, scan_topic: str, map_every_s: float, texture: bool = False,
-                 latched_tf_static: bool = True, pose_feed: "_Recorder | None" = None) -> None:
+                 pose_feed: "_Recorder | None" = None) -> None:
         """``pose_feed``: take /pose from that recorder's subscription instead of a second one."""
         from rclpy.qos import QoSProfile
 

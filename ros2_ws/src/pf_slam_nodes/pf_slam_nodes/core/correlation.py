@@ -15,6 +15,7 @@ import numpy as np
 
 from .config import CorrelationConfig
 from .grid import OccupancyMap
+from .motion import wrap_angle
 
 #: Border (cells) of clamp value around the stored field; bounds the window search shift.
 DEFAULT_PAD_CELLS = 32
@@ -493,7 +494,7 @@ def window_search(
         best_poses[i0:i0 + chunk, 1] = p[:, 1] + sy[iy] * res
         best_poses[i0:i0 + chunk, 2] = p[:, 2] + yaws[j]
         best_scores[i0:i0 + chunk] = flat[np.arange(p.shape[0]), k]
-    best_poses[:, 2] = (best_poses[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    best_poses[:, 2] = wrap_angle(best_poses[:, 2])
     return best_poses, best_scores
 
 
@@ -518,7 +519,7 @@ def _prior_cost(poses: np.ndarray, predicted: np.ndarray, cfg: CorrelationConfig
         c += ((poses[:, 0] - predicted[:, 0]) ** 2 + (poses[:, 1] - predicted[:, 1]) ** 2) * (
             0.5 / cfg.prior_sigma_xy_m ** 2)
     if cfg.prior_sigma_yaw_rad > 0:
-        dth = (poses[:, 2] - predicted[:, 2] + np.pi) % (2 * np.pi) - np.pi
+        dth = wrap_angle(poses[:, 2] - predicted[:, 2])
         c += dth ** 2 * (0.5 / cfg.prior_sigma_yaw_rad ** 2)
     return c
 
@@ -640,7 +641,7 @@ def refine(
             d, gx, gy, rx, ry = dn, gxn, gyn, rxn, ryn
         else:  # the poses still moving all accepted their step: their state is the new one
             d, gx, gy, rx, ry = dn[moving], gxn[moving], gyn[moving], rxn[moving], ryn[moving]
-    x[:, 2] = (x[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    x[:, 2] = wrap_angle(x[:, 2])
     return x, cost
 
 
@@ -685,12 +686,9 @@ def correlate(
     refine_pts = pts[::cfg.refine_beam_stride]
     best, _ = window_search(poses, search_pts, field, cfg)
     best, _ = refine(best, refine_pts, field, cfg.refine_iterations, cfg.refine_residual, cfg.precision)
-    d = _distances(best, refine_pts, field, cfg.precision)
-    score = -0.5 * _rowdot(d, d) / (cfg.sigma_m ** 2)
+    score = _score(best, poses, refine_pts, field, cfg)
     if cfg.prior_sigma_xy_m > 0 or cfg.prior_sigma_yaw_rad > 0:
-        score -= _prior_cost(best, poses, cfg)
-        d0 = _distances(poses, refine_pts, field, cfg.precision)
-        score0 = -0.5 * _rowdot(d0, d0) / (cfg.sigma_m ** 2)
+        score0 = _score(poses, poses, refine_pts, field, cfg)
         stay = score0 >= score
         best[stay] = poses[stay]
         score = np.where(stay, score0, score)
@@ -702,13 +700,17 @@ def correlate(
 def _blend(predicted: np.ndarray, matched: np.ndarray, pts: np.ndarray, field: LikelihoodField,
            cfg: CorrelationConfig) -> tuple[np.ndarray, np.ndarray]:
     """The poses a fraction ``cfg.gain_*`` of the way from ``predicted`` to ``matched`` and
-    their scores (as :func:`correlate`'s, prior included)."""
+    their scores (:func:`_score`)."""
     step = matched - predicted
-    step[:, 2] = (step[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    step[:, 2] = wrap_angle(step[:, 2])
     out = predicted + step * np.array([cfg.gain_xy, cfg.gain_xy, cfg.gain_yaw])
-    out[:, 2] = (out[:, 2] + np.pi) % (2 * np.pi) - np.pi
-    d = _distances(out, pts, field, cfg.precision)
-    score = -0.5 * _rowdot(d, d) / (cfg.sigma_m ** 2)
-    if cfg.prior_sigma_xy_m > 0 or cfg.prior_sigma_yaw_rad > 0:
-        score -= _prior_cost(out, predicted, cfg)
-    return out, score
+    out[:, 2] = wrap_angle(out[:, 2])
+    return out, _score(out, predicted, pts, field, cfg)
+
+
+def _score(poses: np.ndarray, predicted: np.ndarray, pts: np.ndarray, field: LikelihoodField,
+           cfg: CorrelationConfig) -> np.ndarray:
+    """``(N,)`` the weight update of particles at ``poses``: ``-sum d^2 / (2 sigma^2)`` over the
+    points minus the motion prior's cost relative to ``predicted`` (0 without a prior)."""
+    d = _distances(poses, pts, field, cfg.precision)
+    return -0.5 * _rowdot(d, d) / (cfg.sigma_m ** 2) - _prior_cost(poses, predicted, cfg)

@@ -1,9 +1,10 @@
 """correlator: corrects each predicted particle set against the map with the scan.
 
 Subscribes: pf_slam/scan_corrected (LaserScan: the predictor forwards the bytes of exactly the
-scans it sends to be corrected; the n-th belongs to the n-th set with update=true), particles/
-predicted (ParticleArray: one per correction, plus the pass-through end-of-run set), pf_slam/grid (after each integration, the mapper's patch: occupancy of the
-cells that scan touched). Publishes: particles/updated (one per predicted set, carrying the
+scans it sends to be corrected; the n-th belongs to the n-th set with update=true),
+particles/predicted (ParticleArray: one per correction, plus the pass-through end-of-run set),
+pf_slam/grid (after each integration, the mapper's patch: occupancy of the cells that scan
+touched). Publishes: particles/updated (one per predicted set, carrying the
 pose estimate: the best particle or the weighted mean, filter.pose_estimate).
 
 A corrected set (update=true) is scored against the map that holds every scan corrected before

@@ -1,7 +1,8 @@
 """mapper: integrates each corrected scan into the log-odds grid and publishes the map.
 
 Subscribes: pf_slam/scan_corrected (LaserScan: the bytes of exactly the scans that are corrected,
-forwarded by the predictor; the n-th belongs to the n-th set with update=true), particles/updated (ParticleArray: every corrected set, and the end-of-run pass-through set),
+forwarded by the predictor; the n-th belongs to the n-th set with update=true),
+particles/updated (ParticleArray: every corrected set, and the end-of-run pass-through set),
 pf_slam/replay_status (messages per topic, at the end of the bag).
 Publishes: pf_slam/grid (after every integration, the patch of cells the scan touched, for
 the correlator), map + map_metadata (latched, on a timer and once more after the last scan),
