@@ -1,7 +1,10 @@
-"""The car bench's table and its ground-truth FOG bias (no graph run)."""
+"""The car bench's table, targets line, cached bags and ground-truth FOG bias (no graph run)."""
 import numpy as np
 
 from pf_slam_nodes.bench import car
+from pf_slam_nodes.io.bag import bag_info
+from pf_slam_nodes.io.kaist import convert_kaist
+from pf_slam_nodes.sim.car import simulate_car
 
 
 def test_true_fog_bias_per_second_and_table(tmp_path):
@@ -10,9 +13,33 @@ def test_true_fog_bias_per_second_and_table(tmp_path):
     t = 1_700_000_000_000_000_000 + np.arange(100, dtype=np.int64) * 1_000_000  # 1 kHz
     assert abs(car._true_fog_bias_rad_s(tmp_path, t) - 2.0e-4) < 1e-12
     assert car._true_fog_bias_rad_s(tmp_path / "nowhere", t) is None
-    row = dict(seed=3, duration_s=300.0, particles=100, processes="single", ate_m=0.25, dr_ate_m=2.5,
+    row = dict(seed=3, filter_seed=1, duration_s=300.0, particles=100, processes="single", ate_m=0.25, dr_ate_m=2.5,
                dr_rest_bias_ate_m=0.3, gyro_bias_rad_s=1.9e-4, true_gyro_bias_rad_s=2.0e-4, map_f1=0.5,
                map_precision=0.7, map_recall=0.4, wall_s=30.0, rtf=10.0, ceiling_rtf=60.0,
                ratio_to_ceiling=0.167, dropped=0)
     line = car.format_table([row]).splitlines()[2]
+    assert line.startswith("| 3 | 1 | 300 |")
     assert "| 0.250 | 2.500 | 10.0× | 0.300 | 190 / 200 |" in line
+    worse = dict(row, ate_m=0.9, rtf=8.0, dropped=2)
+    assert car.targets_line([row, worse]) == (
+        "2 runs: ATE mean 0.575 m, median 0.575 m, worst 0.900 m; ATE <= 0.5 m and >= 3x below raw dead "
+        "reckoning in 1 of 2; >= 10x real time in 1 of 2 (RTF 8.0-10.0x); dropped 2")
+
+
+def _images(bag):
+    return sum(n for t, n in bag_info(bag)["topics"].values() if t == "sensor_msgs/msg/Image")
+
+
+def test_cached_bag_with_images_is_converted_again(tmp_path):
+    """A cached bag that carries stereo images would also run the texture node (session 5's
+    seeds 3-4): the bench converts the drive again without them, and reuses a clean one."""
+    data = tmp_path / "drive"
+    simulate_car(data, seed=1, duration_s=2.0, stereo_rate_hz=1.0)
+    bag = tmp_path / "bag"
+    convert_kaist(data, bag)
+    assert _images(bag) > 0
+    assert car._bench_bag(data, bag) == bag
+    assert _images(bag) == 0 and bag_info(bag)["topics"]["/scan"][1] > 0
+    stamp = (bag / "metadata.yaml").stat().st_mtime_ns
+    car._bench_bag(data, bag)
+    assert (bag / "metadata.yaml").stat().st_mtime_ns == stamp  # clean: reused as it is

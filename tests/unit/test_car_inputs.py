@@ -23,6 +23,29 @@ def test_gyro_sums_increments_in_half_open_intervals():
     assert g.yaw_between(10_000_000, 11_000_000) == pytest.approx(0.5)
 
 
+def test_gyro_sums_do_not_depend_on_the_batching():
+    """The same 1 kHz samples in messages of 1, 10, 37 or 1000 give the same encoder-step yaw,
+    bit for bit (`--fog-batch` must not change the trajectory of a chaotic filter), also after
+    trimming."""
+    rng = np.random.default_rng(4)
+    stamps = np.cumsum(rng.integers(900_000, 1_100_000, 5000))
+    dyaw = rng.normal(0.0, 1e-4, 5000) + 3e-7
+    steps = np.arange(stamps[0], stamps[-1], 10_000_000)  # 100 Hz encoder steps
+    results = []
+    for batch in (1, 10, 37, 1000):
+        g, got = GyroBuffer(), []
+        for i in range(0, len(stamps), batch):
+            g.add(stamps[i:i + batch], dyaw[i:i + batch])
+            while len(got) + 1 < len(steps) and steps[len(got) + 1] <= g.last_stamp:
+                t0, t1 = steps[len(got)], steps[len(got) + 1]
+                got.append(g.yaw_between(t0, t1))
+                g.trim(t0)
+        results.append(got)
+    assert len(results[0]) == len(steps) - 1
+    for other in results[1:]:
+        assert other == results[0]
+
+
 def test_planar_laser_is_unchanged_but_gated():
     r = np.array([0.5, 3.0, np.inf, 90.0])
     a = np.linspace(-1, 1, 4)

@@ -104,6 +104,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--out", default="runs/bench", help="where bags, runs and tables go")
     b.add_argument("--datasets", nargs="*", help="subset of intel_910 intel_2726 mit-csail")
     b.add_argument("--seeds", type=int, nargs="*", default=[0])
+    b.add_argument("--filter-seeds", type=int, nargs="*", default=[0],
+                   help="car: the filter's random streams (filter.seed) to run on each drive")
     b.add_argument("--processes", choices=["single", "multi"], default="single")
     b.add_argument("--sweep-particles", type=int, nargs="*",
                    help="scaling: particle counts on intel_2726 (default 10 30 100 300 1000)")
@@ -178,7 +180,8 @@ def _dispatch(args: argparse.Namespace) -> int:
             print(f"| {fog['vector3']:.3f} | {fog['batch']:.3f} |")
         elif args.what == "car":
             from .bench import car
-            print(car.main(args.out, tuple(args.seeds), args.duration, args.processes, args.particles))
+            print(car.main(args.out, tuple(args.seeds), args.duration, args.processes, args.particles,
+                           tuple(args.filter_seeds)))
         elif args.what == "ceiling":
             from .bench.ceiling import replay_ceiling
             if not args.bag:

@@ -20,6 +20,8 @@ import os
 
 import numpy as np
 
+from .motion import relative_pose, wrap_angle
+
 __all__ = [
     'RELATION_MAX_DT',
     'align_se2',
@@ -47,11 +49,6 @@ __all__ = [
 RELATION_MAX_DT = 1e-5
 
 
-def wrap_angle(a: np.ndarray | float) -> np.ndarray:
-    """Angles wrapped to ``[-pi, pi)``."""
-    return (np.asarray(a, dtype=np.float64) + np.pi) % (2.0 * np.pi) - np.pi
-
-
 def _poses(p: np.ndarray, name: str) -> np.ndarray:
     a = np.asarray(p, dtype=np.float64)
     if a.ndim != 2 or a.shape[1] != 3:
@@ -60,14 +57,9 @@ def _poses(p: np.ndarray, name: str) -> np.ndarray:
 
 
 def relative_se2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a^-1 * b`` for ``(K, 3)`` pose arrays: ``b`` expressed in the frame of ``a``."""
-    a = np.asarray(a, dtype=np.float64)
-    b = np.asarray(b, dtype=np.float64)
-    dx = b[..., 0] - a[..., 0]
-    dy = b[..., 1] - a[..., 1]
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(b[..., 2] - a[..., 2])],
-                    axis=-1)
+    """``a^-1 * b`` for ``(K, 3)`` pose arrays: ``b`` expressed in the frame of ``a``
+    (:func:`~pf_slam_nodes.core.motion.relative_pose`, the motion model's)."""
+    return relative_pose(a, b)
 
 
 def apply_se2(theta: float, t: np.ndarray, poses: np.ndarray) -> np.ndarray:

@@ -228,24 +228,22 @@ class GyroBuffer:
     """Gyro (FOG) yaw increments in stamp order; sums them over a time interval.
 
     The car's FOG runs at 1 kHz and its samples do not line up with the 100 Hz encoders: the
-    yaw change of an encoder step ``(t0, t1]`` is the sum of the increments stamped in it.
+    yaw change of an encoder step ``(t0, t1]`` is the sum of the increments stamped in it. The
+    buffer keeps the increments themselves and sums each interval's slice, so the result
+    depends only on the samples, not on how they were batched into messages (a bag written
+    with ``--fog-batch 10`` or ``50`` gives the same trajectory, bit for bit).
     """
 
     def __init__(self) -> None:
-        # stamps and cumulative yaw in growing buffers (capacity doubles; O(1) amortised add):
-        # _cum_buf[k] = sum of the first k increments since the start of the buffer
+        # stamps and increments in growing buffers (capacity doubles; O(1) amortised add)
         self._st_buf = np.zeros(1024, dtype=np.int64)
-        self._cum_buf = np.zeros(1025)
+        self._dy_buf = np.zeros(1024)
         self._n = 0
         self.out_of_order = 0
 
     @property
     def _stamps(self) -> np.ndarray:
         return self._st_buf[:self._n]
-
-    @property
-    def _cum(self) -> np.ndarray:
-        return self._cum_buf[:self._n + 1]
 
     @property
     def last_stamp(self) -> int:
@@ -259,13 +257,11 @@ class GyroBuffer:
         n, k = self._n, st.size
         if k == 0:
             return
-        # the usual batch (after the last stamp, increasing, room left): three numpy calls
+        # the usual batch (after the last stamp, increasing, room left): two copies
         if (n + k <= self._st_buf.size and (n == 0 or st[0] > self._st_buf[n - 1])
                 and (k == 1 or bool((st[1:] > st[:-1]).all()))):
             self._st_buf[n:n + k] = st
-            cum = self._cum_buf[n + 1:n + k + 1]
-            np.cumsum(dy, out=cum)
-            cum += self._cum_buf[n]
+            self._dy_buf[n:n + k] = dy
             self._n = n + k
             return
         if self._n:
@@ -280,16 +276,16 @@ class GyroBuffer:
         if n + k > self._st_buf.size:
             cap = max(2 * self._st_buf.size, n + k)
             self._st_buf = np.concatenate([self._st_buf[:n], np.zeros(cap - n, dtype=np.int64)])
-            self._cum_buf = np.concatenate([self._cum_buf[:n + 1], np.zeros(cap - n)])
+            self._dy_buf = np.concatenate([self._dy_buf[:n], np.zeros(cap - n)])
         self._st_buf[n:n + k] = st
-        self._cum_buf[n + 1:n + k + 1] = self._cum_buf[n] + np.cumsum(dy)
+        self._dy_buf[n:n + k] = dy
         self._n = n + k
 
     def yaw_between(self, t0_ns: int, t1_ns: int) -> float:
         """Sum of the increments stamped in ``(t0, t1]`` (rad)."""
         i0 = int(np.searchsorted(self._stamps, t0_ns, side="right"))
         i1 = int(np.searchsorted(self._stamps, t1_ns, side="right"))
-        return float(self._cum[i1] - self._cum[i0])
+        return float(self._dy_buf[i0:i1].sum())
 
     def trim(self, before_ns: int) -> None:
         """Forget increments stamped at or before ``before_ns`` (keeps memory bounded)."""
@@ -297,5 +293,5 @@ class GyroBuffer:
         if k > 10000:
             n = self._n - k
             self._st_buf[:n] = self._st_buf[k:self._n]
-            self._cum_buf[:n + 1] = self._cum_buf[k:self._n + 1]
+            self._dy_buf[:n] = self._dy_buf[k:self._n]
             self._n = n
