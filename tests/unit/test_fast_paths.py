@@ -83,6 +83,22 @@ def test_filter_config_pose_estimate_is_checked():
         FilterConfig(pose_estimate="median")
 
 
+def test_pose_estimates_best_and_mean():
+    """The best particle, or the weighted mean (yaw on the circle): with two hypotheses 3 m
+    apart the mean lands between them."""
+    from pf_slam_nodes.core.stages import pose_estimate
+    particles = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.02], [-0.1, 0.0, -0.02],
+                          [3.0, 0.0, 0.5], [3.1, 0.0, 0.5]])
+    log_w = np.log(np.array([0.3, 0.2, 0.2, 0.15, 0.15]))
+    np.testing.assert_array_equal(pose_estimate(particles, log_w, FilterConfig()), particles[0])
+    mean = pose_estimate(particles, log_w, FilterConfig(pose_estimate="mean"))
+    yaw = math.atan2(0.2 * math.sin(0.02) - 0.2 * math.sin(0.02) + 0.3 * math.sin(0.5),
+                     0.3 + 0.4 * math.cos(0.02) + 0.3 * math.cos(0.5))
+    np.testing.assert_allclose(mean, [0.915, 0.0, yaw], atol=1e-12)
+    np.testing.assert_allclose(pose_estimate(particles[[3, 3]], np.log([0.5, 0.5]), FilterConfig(pose_estimate="mean")),
+                               particles[3], atol=1e-12)
+
+
 def test_odometry_peek_consumes_nothing():
     from pf_slam_nodes.core.odometry import OdometryBuffer
     for sync in ("exact", "interpolate"):

@@ -19,9 +19,8 @@ import yaml
 
 from ..core.metrics import evaluate
 from . import STAGE_COLUMNS, stage_cells
-from .carmen import DATASETS, carmen_bag
+from .carmen import CARMEN_YAML, DATASETS, carmen_bag
 
-CARMEN_YAML = Path(__file__).resolve().parents[2] / "config" / "carmen_indoor.yaml"
 PARTICLES = (10, 30, 100, 300, 1000)
 GRID_CELLS = (500, 1000, 2000, 4000)
 

@@ -207,14 +207,7 @@ class CorrectionStage:
             log_w = update_log_weights(log_w, scores, self.corr_cfg.temperature)
         self.clock.add("correlate", t0)
         t0 = time.perf_counter()
-        if self.filter_cfg.pose_estimate == "mean":
-            w = np.exp(log_w - log_w.max())
-            w /= w.sum()
-            th = particles[:, 2]
-            pose = np.array([w @ particles[:, 0], w @ particles[:, 1],
-                             math.atan2(w @ np.sin(th), w @ np.cos(th))])
-        else:
-            pose = particles[int(np.argmax(log_w))].copy()
+        pose = pose_estimate(particles, log_w, self.filter_cfg)
         n = log_w.size
         resampled = bool(n_eff(log_w) < self.resample_cfg.neff_threshold * n)
         if resampled:
@@ -226,6 +219,18 @@ class CorrectionStage:
         self.num_corrections += 1
         self.clock.add("resample", t0)
         return Correction(particles, log_w, pose, resampled, bool(matched))
+
+
+def pose_estimate(particles: np.ndarray, log_w: np.ndarray, cfg: FilterConfig) -> np.ndarray:
+    """The pose of a corrected set (``cfg.pose_estimate``): the best particle, or the weighted
+    mean of all particles (yaw on the circle)."""
+    best = int(np.argmax(log_w))
+    if cfg.pose_estimate == "best":
+        return particles[best].copy()
+    w = np.exp(log_w - log_w[best])
+    w /= w.sum()
+    th = particles[:, 2]
+    return np.array([w @ particles[:, 0], w @ particles[:, 1], math.atan2(w @ np.sin(th), w @ np.cos(th))])
 
 
 class MappingStage:
