@@ -27,7 +27,7 @@ def test_true_fog_bias_per_second_and_table(tmp_path):
 
 
 def _images(bag):
-    return sum(n for t, n in bag_info(bag)["topics"].values() if t == "sensor_msgs/msg/Image")
+    return car.images_in(bag_info(bag)["topics"])
 
 
 def test_cached_bag_with_images_is_converted_again(tmp_path):

@@ -66,6 +66,11 @@ def _ate(t_est: np.ndarray, p_est: np.ndarray, t_gt: np.ndarray, p_gt: np.ndarra
     return float(metrics.ate(p_est[pairs[:, 0]], p_gt[pairs[:, 1]])["rmse"])
 
 
+def images_in(topics: dict) -> int:
+    """Number of ``sensor_msgs/Image`` messages in a bag's ``bag_info()["topics"]``."""
+    return sum(n for msgtype, n in topics.values() if msgtype == "sensor_msgs/msg/Image")
+
+
 def _bench_bag(data: Path, bag: Path) -> Path:
     """The drive's bag, converted once without stereo images. A cached bag is reused only if it
     holds the drive's messages and no images (one that carries images also runs the texture
@@ -75,7 +80,7 @@ def _bench_bag(data: Path, bag: Path) -> Path:
 
     if (bag / "metadata.yaml").is_file():
         topics = bag_info(bag)["topics"]
-        images = sum(n for _, (t, n) in topics.items() if t == "sensor_msgs/msg/Image")
+        images = images_in(topics)
         scans = topics.get("/scan", ("", 0))[1]
         if images == 0 and scans > 0:
             return bag
@@ -108,6 +113,8 @@ def bench(out_dir: Path, seeds=(0,), duration_s: float = 300.0, processes: str =
         streams = odometry_streams(data)
         t_dr, p_dr = dead_reckoning(data, streams=streams)
         t_dc, p_dc = dead_reckoning(data, gyro_rest_bias=True, streams=streams)
+        dr_ate = _ate(t_dr / 1e9, p_dr, t_gt, p_gt)
+        dr_rest_bias_ate = _ate(t_dc / 1e9, p_dc, t_gt, p_gt)
         true_bias = _true_fog_bias_rad_s(data, streams["fog_t"])
         go, gr, gorig = read_map(data / "ground_truth" / "occupancy.yaml")
         for fseed in filter_seeds:
@@ -128,8 +135,7 @@ def bench(out_dir: Path, seeds=(0,), duration_s: float = 300.0, processes: str =
                 "processes": processes,
                 "particles": s["particles"], "scans": s["scans_processed"], "dropped": s["scans_dropped"],
                 "corrected": s["scans_corrected"], "ate_m": _ate(t_est, p_est, t_gt, p_gt),
-                "dr_ate_m": _ate(t_dr / 1e9, p_dr, t_gt, p_gt),
-                "dr_rest_bias_ate_m": _ate(t_dc / 1e9, p_dc, t_gt, p_gt),
+                "dr_ate_m": dr_ate, "dr_rest_bias_ate_m": dr_rest_bias_ate,
                 "gyro_bias_rad_s": s.get("gyro", {}).get("bias_rad_s"), "true_gyro_bias_rad_s": true_bias,
                 "map_f1": f1["f1"],
                 "map_precision": f1["precision"], "map_recall": f1["recall"],

@@ -1,8 +1,9 @@
 """Accuracy and speed of the full graph on the CARMEN logs (the targets table of the README).
 
 For each log: convert it to a bag (cached), run the graph in `--rate max` with
-config/carmen_indoor.yaml (the parameter file for these logs), and evaluate against the Kümmerle relations and/or GMapping's reference poses. Prints a markdown
-table and writes it (and the raw numbers as JSON) into the output folder.
+config/carmen_indoor.yaml (the parameter file for these logs), and evaluate against the
+Kümmerle relations and/or GMapping's reference poses. Prints a markdown table and writes it
+(and the raw numbers as JSON) into the output folder.
 """
 from __future__ import annotations
 

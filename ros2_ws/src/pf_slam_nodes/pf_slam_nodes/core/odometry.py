@@ -257,26 +257,22 @@ class GyroBuffer:
         n, k = self._n, st.size
         if k == 0:
             return
-        # the usual batch (after the last stamp, increasing, room left): two copies
-        if (n + k <= self._st_buf.size and (n == 0 or st[0] > self._st_buf[n - 1])
+        # the usual batch (after the last stamp, increasing, room left) goes straight to the copies
+        if not (n + k <= self._st_buf.size and (n == 0 or st[0] > self._st_buf[n - 1])
                 and (k == 1 or bool((st[1:] > st[:-1]).all()))):
-            self._st_buf[n:n + k] = st
-            self._dy_buf[n:n + k] = dy
-            self._n = n + k
-            return
-        if self._n:
-            keep = st > self.last_stamp
-            if not keep.all():
-                self.out_of_order += int((~keep).sum())  # a stamp at or before the last one: dropped
-                st, dy = st[keep], dy[keep]
-        if st.size > 1 and np.any(np.diff(st) <= 0):
-            order = np.argsort(st, kind="stable")
-            st, dy = st[order], dy[order]
-        n, k = self._n, st.size
-        if n + k > self._st_buf.size:
-            cap = max(2 * self._st_buf.size, n + k)
-            self._st_buf = np.concatenate([self._st_buf[:n], np.zeros(cap - n, dtype=np.int64)])
-            self._dy_buf = np.concatenate([self._dy_buf[:n], np.zeros(cap - n)])
+            if n:
+                keep = st > self.last_stamp
+                if not keep.all():
+                    self.out_of_order += int((~keep).sum())  # a stamp at or before the last one: dropped
+                    st, dy = st[keep], dy[keep]
+            if st.size > 1 and np.any(np.diff(st) <= 0):
+                order = np.argsort(st, kind="stable")
+                st, dy = st[order], dy[order]
+            k = st.size
+            if n + k > self._st_buf.size:
+                cap = max(2 * self._st_buf.size, n + k)
+                self._st_buf = np.concatenate([self._st_buf[:n], np.zeros(cap - n, dtype=np.int64)])
+                self._dy_buf = np.concatenate([self._dy_buf[:n], np.zeros(cap - n)])
         self._st_buf[n:n + k] = st
         self._dy_buf[n:n + k] = dy
         self._n = n + k
