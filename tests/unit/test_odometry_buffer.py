@@ -79,3 +79,78 @@ def test_gyro_rest_bias_ignores_short_rests_but_zeroes_their_yaw():
     assert p[2] == pytest.approx(5e-4 * 10.0, rel=1e-6)  # the rest steps' yaw was zeroed, moving ones kept
     with pytest.raises(ValueError, match="rest_min_s"):
         WheelOdometryIntegrator(0.5, 0.5, 1.5, gyro_rest_bias=True, rest_min_s=0.0)
+
+
+# ------------------------------------------------------------------ bad and missing odometry (issue 17)
+def _line(buf, stamps, bad=()):
+    for t in stamps:
+        buf.add(t, None if t in bad else np.array([t / 10.0, 0.0, 0.0]))
+
+
+@pytest.mark.parametrize("sync", ["exact", "interpolate"])
+@pytest.mark.parametrize("run", [2, 5, 50])
+def test_bad_messages_in_a_row_are_bridged_once_a_good_one_comes(sync, run):
+    """`run` NaN messages in a row: their scans wait for the next good message (not for ever:
+    nothing in the buffer blocks on a count), then get the interpolation across, each counted."""
+    buf = OdometryBuffer(sync)
+    stamps = list(range(0, 10 * (run + 20), 10))
+    bad = set(stamps[10:10 + run])
+    _line(buf, stamps[:10 + run], bad)
+    for t in stamps[:10]:
+        assert buf.lookup(t)[0] == t / 10.0
+    assert buf.lookup(stamps[10]) is None  # the next good message has not arrived
+    _line(buf, stamps[10 + run:])
+    got = [buf.lookup(t) for t in stamps[10:]]
+    np.testing.assert_allclose([p[0] for p in got], [t / 10.0 for t in stamps[10:]])  # a straight line
+    assert buf.missing == run
+
+
+def test_exact_missing_partners_resolved_when_a_later_scan_pairs():
+    buf = OdometryBuffer("exact")
+    _line(buf, [0, 10, 20])
+    for t in (0, 10, 20):
+        buf.lookup(t)
+    queue = [30, 40, 50, 60]  # the odometry of 30..50 never comes; 60's does
+    assert not buf.later_paired(queue)
+    _line(buf, [60])
+    assert buf.later_paired(queue) and buf.later_paired([30, None, 60])  # None: an unreadable scan
+    p = [buf.lookup(t, final=True) for t in (30, 40, 50)]
+    np.testing.assert_allclose([q[0] for q in p], [3.0, 4.0, 5.0])  # between 20 and 60
+    assert buf.missing == 3 and buf.last_missing
+    assert buf.lookup(60)[0] == 6.0 and not buf.last_missing
+
+
+def test_interpolate_across_a_gap_counts_missing():
+    buf = OdometryBuffer("interpolate")
+    _line(buf, [0, 10, 20, 30, 2000, 2010])  # 30 -> 2000 ns: 197 x the interval before
+    buf.GAP_MIN_NS = 100
+    assert buf.lookup(25) is not None and not buf.last_missing
+    assert buf.lookup(1000)[0] == pytest.approx(100.0) and buf.last_missing
+    assert buf.lookup(2000)[0] == 200.0 and not buf.last_missing  # its own message
+
+
+def test_final_without_any_good_odometry_is_the_origin():
+    buf = OdometryBuffer("interpolate")
+    assert buf.lookup(5) is None
+    np.testing.assert_array_equal(buf.lookup(5, final=True), [0, 0, 0])
+    buf.add_bad(10)
+    assert buf.lookup(10) is None  # nothing good yet: wait
+    assert buf.missing == 1
+
+
+def test_no_partner_tells_separate_odometry_from_a_gap():
+    """Exact pairing on odometry recorded at other times (CARMEN ODOM lines): detected once 5
+    scans the odometry has passed have no partner while odometry between them arrived; a
+    stretch with no odometry at all is not that."""
+    buf = OdometryBuffer("exact")
+    _line(buf, [5, 15, 25, 35, 45, 55])  # between the scans at 0, 10, .., 50
+    assert buf.lookup(0) is None
+    assert buf.no_partner([0, 10, 20, 30]) is None  # 4 scans: not yet
+    assert buf.no_partner([0, 10, 20, 30, 40, 50]) == (6, 5)
+    buf.fall_back(scan=0)
+    assert buf.sync == "interpolate" and buf.fallback == {"scan": 0}
+    assert buf.lookup(10)[0] == pytest.approx(1.0)
+    gap = OdometryBuffer("exact")
+    _line(gap, [0, 100])
+    gap.lookup(0)
+    assert gap.no_partner([10, 20, 30, 40, 50, 60]) is None  # nothing arrived between them

@@ -214,7 +214,10 @@ def detect_inputs(bag: str, info: dict, inputs: dict[str, str] | None = None) ->
     topic = inputs[source]
     scan_stamps, odom_stamps, scan_frame = [], set(), None
     for t, msgtype, _, raw in read_bag(bag, topics=[scan_topic, topic]):
-        msg = deserialize(raw, msgtype)
+        try:
+            msg = deserialize(raw, msgtype)
+        except Exception:  # an unreadable message: the predictor counts it at run time
+            continue
         ns = stamp_ns_of(msg)
         if t == scan_topic:
             scan_stamps.append(ns)
@@ -618,6 +621,13 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     if overrides:
         layers.append(overrides)
     per_node = {n: node_params(layers, n) for n in node_names}
+    # the replay says when it stopped for the poses (pf_slam/replay_stall): that, not the number
+    # of scans waiting (odom_wait_scans, for live inputs), decides that odometry will not come
+    per_node["predictor"].setdefault("odom_wait_scans", 0)
+    if str(per_node["bag_replay"].get("rate", "max")) == "max":
+        # arrival times say nothing about the clocks at --rate max (the bag's stamps were checked
+        # before the run: inspect_stamps)
+        per_node["predictor"].setdefault("stamp_offset_s", 0.0)
     out = Path(out_dir)
     (out / "snapshots").mkdir(parents=True, exist_ok=True)
     scans_total = info["topics"][inputs["scan"]][1]

@@ -78,8 +78,24 @@ class ScanChecks:
             self.counts[kind] += 1
         return usable, faults
 
-    def unreadable(self, error: Exception) -> list[tuple[str, str]]:
-        """A scan whose bytes cannot be read: counted; the caller poses it from odometry at the
-        previous scan's stamp (it keeps its place: the other nodes number scans by arrival)."""
+    def unreadable(self, error: Exception, own_stamp: bool = False) -> list[tuple[str, str]]:
+        """A scan whose bytes cannot be read: counted; the caller poses it from odometry, at its
+        own stamp if that could be read (``own_stamp``), else at the previous scan's (it keeps its
+        place: the other nodes number scans by arrival)."""
         self.counts[SCAN_UNREADABLE] += 1
-        return [(SCAN_UNREADABLE, f"unreadable ({error}): posed from odometry at the previous scan's stamp")]
+        where = "its own stamp" if own_stamp else "the previous scan's stamp"
+        return [(SCAN_UNREADABLE, f"unreadable ({error}): posed from odometry at {where}")]
+
+    def readable_stamp(self, raw: bytes, reader) -> Optional[int]:
+        """The header stamp of an otherwise unreadable scan (``reader``: a CDR reader class with
+        ``stamp_ns()``), if it can be read and lies within ``time_gap_s`` of the previous scan's;
+        else None. The previous stamp is not updated: an unreadable scan does not count for the
+        stamp checks."""
+        try:
+            stamp = int(reader(raw, "sensor_msgs/LaserScan").stamp_ns())
+        except (ValueError, OverflowError):
+            return None
+        last = self.last_stamp_ns
+        if stamp < 0 or (last is not None and abs(stamp - last) > self.gap_ns):
+            return None
+        return stamp

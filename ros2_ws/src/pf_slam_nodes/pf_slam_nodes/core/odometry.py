@@ -27,100 +27,238 @@ class OdometryBuffer:
         odometry poses that bracket the scan stamp (yaw interpolated on the circle).
 
     Stamps are integer nanoseconds.
+
+    Bad messages (NaN odometry, a bad encoder message) are added with :meth:`add_bad`: they keep
+    their place in the stream without a pose. A scan whose own odometry message was bad (in
+    *exact* its partner, in *interpolate* the first message at or after its stamp), or whose
+    partner will not come (``final``), gets the interpolation between the good poses around it
+    in the stream, once the next good one is here, else (``final``) the nearest earlier good
+    pose; counted in ``missing``. The result depends only on the stream, not on arrival times.
+
+    Exact pairing that finds no partner while odometry stamped later than the scan keeps
+    arriving (a log whose odometry comes in separate messages at other times) cannot work:
+    :meth:`no_partner` detects it and :meth:`fall_back` switches to interpolation for good
+    (``fallback`` then says when and why).
     """
+
+    #: exact pairing is given up when this many queued scans that the odometry has passed have no
+    #: partner while at least NO_PARTNER_BETWEEN odometry messages stamped between them arrived
+    #: (looked for among the last NO_PARTNER_LOOK messages)
+    NO_PARTNER_SCANS = 5
+    NO_PARTNER_BETWEEN = 2
+    NO_PARTNER_LOOK = 1000
 
     def __init__(self, sync: str = "interpolate") -> None:
         if sync not in ("exact", "interpolate"):
             raise ValueError(f"odom_sync must be 'exact' or 'interpolate', got {sync!r}")
         self.sync = sync
         self._stamps: list[int] = []
-        self._poses: list[np.ndarray] = []
+        self._poses: list[Optional[np.ndarray]] = []  # None: a bad message (kept for its stamp)
         self._exact: dict[int, list[int]] = defaultdict(list)
         self._scan_seen: dict[int, int] = defaultdict(int)
         self._cursor = 0
+        self._dropped = 0  # messages trimmed off the front (received = dropped + len)
         self.backward_steps = 0
         self.missing = 0
+        self.progress_ns: Optional[int] = None  # the latest stamp of any message, good or bad
+        self.fallback: Optional[dict] = None
+        self.last_missing = self.peek_missing = False
 
     def __len__(self) -> int:
         return len(self._stamps)
 
-    def add(self, stamp_ns: int, pose: np.ndarray) -> None:
+    @property
+    def received(self) -> int:
+        """Messages added so far (good and bad), trimmed ones included."""
+        return self._dropped + len(self._stamps)
+
+    def add(self, stamp_ns: int, pose: Optional[np.ndarray]) -> None:
+        stamp_ns = int(stamp_ns)
         if self._stamps and stamp_ns < self._stamps[-1]:
             self.backward_steps += 1
         self._exact[stamp_ns].append(len(self._stamps))
-        self._stamps.append(int(stamp_ns))
-        self._poses.append(np.asarray(pose, dtype=np.float64).reshape(3))
+        self._stamps.append(stamp_ns)
+        self._poses.append(None if pose is None else np.asarray(pose, dtype=np.float64).reshape(3))
+        self.progress_ns = stamp_ns if self.progress_ns is None else max(self.progress_ns, stamp_ns)
+
+    def add_bad(self, stamp_ns: int) -> None:
+        """A message that arrived but cannot be used (NaN/inf): its stamp keeps its place."""
+        self.add(stamp_ns, None)
 
     @property
     def last(self) -> Optional[np.ndarray]:
-        return self._poses[-1] if self._poses else None
+        i = self._good_at_or_before(len(self._poses) - 1)
+        return None if i is None else self._poses[i]
+
+    def _good_at_or_before(self, i: int) -> Optional[int]:
+        while i >= 0 and self._poses[i] is None:
+            i -= 1
+        return i if i >= 0 else None
+
+    def _nearest_good(self, i: int) -> Optional[np.ndarray]:
+        """The good pose at or before index i, else the first good one after it."""
+        j = self._good_at_or_before(min(i, len(self._poses) - 1))
+        if j is None:
+            j = next((k for k in range(max(i, 0), len(self._poses)) if self._poses[k] is not None), None)
+        return None if j is None else self._poses[j].copy()
 
     def has_exact(self, stamp_ns: int, ahead: int = 0) -> bool:
         """True when the odometry for the next (+ ``ahead``) scan with this stamp has arrived."""
         return self._scan_seen[stamp_ns] + ahead < len(self._exact.get(stamp_ns, ()))
 
+    def later_paired(self, stamps: list) -> bool:
+        """Exact: True when a scan behind the head (``stamps``: the queued scans' stamps, head
+        first, None for a scan without one) has its own odometry message already, so the head's
+        will not come (odometry arrives in order). Unreadable scans (None) are skipped."""
+        if self.sync != "exact" or len(stamps) < 2:
+            return False
+        seen: dict[int, int] = defaultdict(int)
+        seen[stamps[0]] += 1
+        for t in stamps[1:]:
+            if t is None:
+                continue
+            if self.has_exact(t, ahead=seen[t]):
+                return True
+            seen[t] += 1
+        return False
+
+    def no_partner(self, stamps: list) -> Optional[tuple[int, int]]:
+        """Exact: is the pairing impossible for this input? ``stamps``: the queued scans' stamps,
+        head first (None: a scan without one). True evidence, not a delay: at least
+        ``NO_PARTNER_SCANS`` queued scans that the odometry has already passed (stamped before
+        its newest message) have no odometry message with their stamp, while odometry messages
+        stamped *between* them did arrive (a log whose odometry comes in its own messages at
+        other times). A stretch without any odometry (messages lost) is not this: nothing
+        arrived between those scans. Returns (scans without a partner, odometry messages between
+        them), or None."""
+        if self.sync != "exact" or self.progress_ns is None:
+            return None
+        covered = [t for t in stamps if t is not None and t < self.progress_ns]
+        if len(covered) < self.NO_PARTNER_SCANS or any(self.has_exact(t) for t in covered):
+            return None
+        lo, hi = min(covered), max(covered)
+        between = sum(1 for t in self._stamps[-self.NO_PARTNER_LOOK:] if lo < t < hi)
+        return (len(covered), between) if between >= self.NO_PARTNER_BETWEEN else None
+
+    def fall_back(self, **why) -> None:
+        """Exact -> interpolate for the rest of the run (``why``: numbers for the report)."""
+        if self.sync == "exact":
+            self.sync = "interpolate"
+            self.fallback = dict(why)
+            self._cursor = 0  # stamps are searched from the start once, then the cursor moves on
+
     def peek(self, stamp_ns: int, final: bool = False) -> Optional[np.ndarray]:
-        """What :meth:`lookup` would return now, without consuming anything."""
-        cursor, missing = self._cursor, self.missing
-        seen = self._scan_seen[stamp_ns] if stamp_ns in self._scan_seen else None
-        try:
-            return self.lookup(stamp_ns, final)
-        finally:
-            self._cursor, self.missing = cursor, missing
-            if seen is None:
-                self._scan_seen.pop(stamp_ns, None)
-            else:
-                self._scan_seen[stamp_ns] = seen
+        """What :meth:`lookup` would return now, without consuming anything (``peek_missing``:
+        whether it would count as missing)."""
+        pose, self.peek_missing = self._resolve(stamp_ns, final, commit=False)
+        return pose
 
     def lookup(self, stamp_ns: int, final: bool = False) -> Optional[np.ndarray]:
         """Odometry pose at a scan stamp, or None when it has not arrived yet.
 
         Call once per scan, in scan order (the exact rule counts occurrences). With
-        ``final=True`` (end of stream, or a later scan already resolved) a pose is always
-        returned: the best available (nearest earlier odometry), counted in ``missing``.
+        ``final=True`` (end of stream, or the odometry is known not to come) a pose is always
+        returned: the best available (see the class), counted in ``missing``; the origin if no
+        good odometry arrived at all. ``last_missing``: whether this scan's was.
         """
-        if not self._poses:
+        pose, missing = self._resolve(stamp_ns, final, commit=True)
+        if pose is not None:
+            self.last_missing = missing
+            self.missing += int(missing)
+        return pose
+
+    def _next_good(self, i: int, after_ns: Optional[int] = None) -> Optional[int]:
+        """Index of the first good pose after index i (stream order; stamped after ``after_ns``
+        if given), or None (not arrived yet)."""
+        return next((k for k in range(i + 1, len(self._poses)) if self._poses[k] is not None
+                     and (after_ns is None or self._stamps[k] > after_ns)), None)
+
+    #: a bracket between two good poses is a gap in the odometry (the scans in it count as
+    #: missing) when longer than this and than GAP_FACTOR x the interval before it
+    GAP_MIN_NS = 500_000_000
+    GAP_FACTOR = 10
+
+    def _is_gap(self, i: int, k: int) -> bool:
+        span = self._stamps[k] - self._stamps[i]
+        h = self._good_at_or_before(i - 1)
+        before = self._stamps[i] - self._stamps[h] if h is not None else 0
+        return span > max(self.GAP_MIN_NS, self.GAP_FACTOR * before)
+
+    def _between(self, stamp_ns: int, i: Optional[int], k: Optional[int]) -> Optional[np.ndarray]:
+        """Interpolation between the good poses i and k when the stamp lies strictly between
+        their stamps, else None."""
+        if i is None or k is None:
             return None
-        if self.sync == "exact":
-            n = self._scan_seen[stamp_ns]
-            hits = self._exact.get(stamp_ns, [])
-            if n < len(hits):
-                self._scan_seen[stamp_ns] += 1
-                self._cursor = hits[n]
-                return self._poses[hits[n]].copy()
-            if not final:
-                return None
-            self._scan_seen[stamp_ns] += 1
-            self.missing += 1
-            return self._poses[self._cursor].copy()
-        # interpolate: first odometry at or after the stamp, from the cursor on
-        j = self._cursor
-        while j < len(self._stamps) and self._stamps[j] < stamp_ns:
-            j += 1
-        if j == len(self._stamps):
-            if not final:
-                return None
-            self.missing += 1
-            self._cursor = len(self._stamps) - 1
-            return self._poses[-1].copy()
-        self._cursor = max(j - 1, 0)
-        t1, p1 = self._stamps[j], self._poses[j]
-        if j == 0 or t1 == stamp_ns:
-            return p1.copy()
-        t0, p0 = self._stamps[j - 1], self._poses[j - 1]
-        if t0 > stamp_ns or t1 == t0:
-            return p1.copy()
+        t0, t1 = self._stamps[i], self._stamps[k]
+        if not t0 < stamp_ns < t1:
+            return None
         a = (stamp_ns - t0) / (t1 - t0)
+        p0, p1 = self._poses[i], self._poses[k]
         out = p0 + a * (p1 - p0)
         out[2] = float(wrap_angle(p0[2] + a * float(wrap_angle(p1[2] - p0[2]))))
         return out
 
+    def _resolve(self, stamp_ns: int, final: bool, commit: bool) -> tuple[Optional[np.ndarray], bool]:
+        """(pose or None, whether the scan's own odometry was missing)."""
+        if not self._stamps:
+            return (np.zeros(3), True) if final else (None, False)
+        if self.sync == "exact":
+            n = self._scan_seen[stamp_ns] if stamp_ns in self._scan_seen else 0
+            hits = self._exact.get(stamp_ns, [])
+            if n < len(hits) and self._poses[hits[n]] is not None:
+                if commit:
+                    self._scan_seen[stamp_ns] += 1
+                    self._cursor = hits[n]
+                return self._poses[hits[n]].copy(), False
+            if n >= len(hits) and not final:
+                return None, False
+            # the partner was bad, or will not come: interpolated between the good poses around
+            # it in the stream (once the next one stamped after it is here), else the nearest
+            # earlier good pose
+            after = hits[n] if n < len(hits) else self._cursor
+            nxt = self._next_good(after, stamp_ns)
+            if nxt is None and not final:
+                return None, False
+            pose = self._between(stamp_ns, self._good_at_or_before(after), nxt)
+            if pose is None:
+                pose = self._nearest_good(self._cursor)
+            if commit:
+                self._scan_seen[stamp_ns] += 1
+            return (np.zeros(3) if pose is None else pose), True
+        # interpolate: first odometry message at or after the stamp, from the cursor on
+        j = self._cursor
+        stamps = self._stamps
+        while j < len(stamps) and stamps[j] < stamp_ns:
+            j += 1
+        g = j if j < len(stamps) and self._poses[j] is not None else self._next_good(j)
+        if g is None:  # no good odometry at or after the stamp yet
+            if not final:
+                return None, False
+            pose = self._nearest_good(len(stamps) - 1)
+            if commit:
+                self._cursor = max(j - 1, 0)
+            return (np.zeros(3) if pose is None else pose), True
+        if commit:
+            self._cursor = max(j - 1, 0)
+        missing = g != j  # its own message was bad: bracketed across the bad ones
+        p1 = self._poses[g]
+        i = None if j == 0 else self._good_at_or_before(j - 1)
+        if i is not None and stamps[g] != stamp_ns and self._is_gap(i, g):
+            missing = True  # bracketed across a stretch without odometry: a guess
+        if i is None or stamps[g] == stamp_ns:
+            return p1.copy(), missing
+        pose = self._between(stamp_ns, i, g)
+        return (p1.copy() if pose is None else pose), missing
+
     def trim(self) -> None:
         """Forget poses before the cursor (keeps memory bounded on long runs)."""
         if self.sync == "interpolate" and self._cursor > 1000:
-            k = self._cursor - 1
+            k = self._good_at_or_before(self._cursor - 1)  # keep the good pose interpolation starts from
+            if not k:
+                return
             del self._stamps[:k], self._poses[:k]
             self._cursor -= k
+            self._dropped += k
             self._exact.clear()
 
 

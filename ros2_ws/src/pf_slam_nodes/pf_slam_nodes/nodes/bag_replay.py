@@ -3,7 +3,9 @@
 Messages are published as recorded (serialized CDR, never deserialized here), in record-time
 order. Rates: `rate:=max` paces on the pipeline: at most `max_in_flight` scans are published
 and not yet posed (counted on pose, one per scan), so nothing is dropped and the run is
-reproducible; `rate:=1` is real time, `rate:=N` N times real time. At the end of the bag the
+reproducible; each time it stops there it says so on pf_slam/replay_stall (ReplayStatus with
+done=false and the counts so far: a predictor that has all of them and still lacks a scan's
+odometry knows that it will not come before it poses that scan); `rate:=1` is real time, `rate:=N` N times real time. At the end of the bag the
 number of messages published per topic goes out on pf_slam/replay_status (latched).
 """
 from __future__ import annotations
@@ -70,6 +72,8 @@ class BagReplay(Node):
             self.publishers_[topic] = self.create_publisher(message_class(msgtype), topic, profile)
         self.pub_clock = self.create_publisher(Clock, topics.CLOCK, qos.outputs(10))
         self.pub_status = self.create_publisher(ReplayStatus, topics.REPLAY_STATUS, qos.latched())
+        self.pub_stall = self.create_publisher(ReplayStatus, topics.REPLAY_STALL, qos.pipeline())
+        self.stall_sent_at = -1  # scans_published when the last stall went out
         self.create_subscription(PoseStamped, topics.POSE, self._on_progress, qos.pipeline(), raw=True)
         self.create_subscription(String, topics.READY, self._on_ready, qos.latched(depth=10))
         self.messages = read_bag(self.bag)
@@ -120,6 +124,12 @@ class BagReplay(Node):
             if topic == self.scan_topic and self.rate is None and \
                     self.scans_published - self.scans_processed >= self.max_in_flight:
                 self.timer.cancel()  # resumed by _on_progress
+                if self.stall_sent_at != self.scans_published:
+                    self.stall_sent_at = self.scans_published
+                    stall = self._counts(done=False)  # + the poses it had: stopped until the next one
+                    stall.topics.append(topics.POSE)
+                    stall.counts.append(self.scans_processed)
+                    self.pub_stall.publish(stall)
                 return
             if self.rate is not None:
                 due = self.t0_wall + (stamp_ns - self.t0_bag) / 1e9 / self.rate
@@ -137,11 +147,14 @@ class BagReplay(Node):
     def _finish(self) -> None:
         self.done = True
         self.timer.cancel()
-        topics_ = sorted(self.published)
-        self.pub_status.publish(ReplayStatus(done=True, topics=topics_,
-                                             counts=[self.published[t] for t in topics_]))
+        self.pub_status.publish(self._counts(done=True))
         self.get_logger().info(f"end of bag: {sum(self.published.values())} messages, "
                                f"{self.scans_published} scans published")
+
+
+    def _counts(self, done: bool) -> ReplayStatus:
+        topics_ = sorted(self.published)
+        return ReplayStatus(done=done, topics=topics_, counts=[self.published[t] for t in topics_])
 
 
 def main(args: list[str] | None = None) -> int:

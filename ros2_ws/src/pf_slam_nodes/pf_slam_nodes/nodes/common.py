@@ -58,6 +58,10 @@ PARAM_DOCS: dict[str, str] = {
     "wheels.rest_min_s": "wheels.gyro_rest_bias: shortest rest (no counter moving) that calibrates the gyro bias (s)",
     "wheels.max_speed_mps": "a wheel step faster than this is an encoder counter jump: its motion is "
                             "discarded and counted (m/s)",
+    "odom_wait_scans": "live inputs: a scan whose odometry has not arrived while this many scans wait behind it is "
+                       "posed with the nearest earlier odometry (counted: odom_not_arrived); 0: off (pf-slam run: "
+                       "the replay's pf_slam/replay_stall decides instead, deterministically)",
+    "stamp_offset_s": "odometry stamps this far (s) ahead of or behind the scan stamps are reported (odom_stamp_offset)",
     "time_gap_s": "scan stamps stepping forward by more than this are counted as a time gap (s)",
     "publish_odom_tf": "publish odom -> base_frame on /tf at every scan (off when the bag carries its own /tf)",
     "publish_sensor_tf": "publish base_frame -> the scan's frame on /tf_static from filter.sensor_offset_* / "

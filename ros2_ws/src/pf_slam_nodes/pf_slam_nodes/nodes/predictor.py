@@ -48,6 +48,8 @@ from ..io.trajectory import quat_to_yaw
 from ..ros import cdr, convert, qos, topics
 from .common import announce_when_matched, declare_config, param, run_node, status_publisher
 
+LOOK_AHEAD = 200  # queued scans looked at for evidence about the head scan's odometry
+
 
 class Predictor(Node):
     def __init__(self, **kwargs) -> None:
@@ -58,7 +60,17 @@ class Predictor(Node):
         if source not in ("odom", "encoders"):
             raise ValueError(f"parameter 'odometry_source' must be 'odom' or 'encoders', got {source!r}")
         self.odom = OdometryBuffer(param(self, "odom_sync", "interpolate"))
-        self.scans: deque[tuple[int, int, bool, bytes]] = deque()  # (scan_index, stamp_ns, usable, raw)
+        # (scan_index, stamp_ns or None (unreadable), usable, raw, odometry messages received before it)
+        self.scans: deque[tuple[int, int | None, bool, bytes, int]] = deque()
+        self.odom_wait_scans = param(self, "odom_wait_scans", 50)
+        if self.odom_wait_scans < 0:
+            raise ValueError(f"parameter 'odom_wait_scans' must be >= 0 (0: off), got {self.odom_wait_scans}")
+        self.stamp_offset_ns = int(param(self, "stamp_offset_s", 2.0) * 1e9)  # 0: off
+        self.odom_forced = 0  # scans posed without waiting longer for odometry that did not come
+        self.stamp_offset = 0  # scans whose stamp was seconds away from the odometry's
+        self._offset_run = 0  # scans in a row so far away
+        self._odom_arrived_at_scan = 0
+        self.prev_odom: tuple[int, np.ndarray] | None = None  # (stamp, odometry) of the last scan posed
         self.checks = ScanChecks(param(self, "time_gap_s", 60.0))
         self.odometry_nonfinite = 0
         self.poses_published = 0
@@ -87,6 +99,9 @@ class Predictor(Node):
                                      (self.pub_pose, 1 + param(self, "expected_observers", 0)), (sub_scan, 1)])
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
+        self.stall: dict[str, int] | None = None  # the replay's counts when it last stopped at max_in_flight
+        self.odom_arrived = 0  # odometry messages as they arrive (odom_received: once integrated)
+        self.create_subscription(ReplayStatus, topics.REPLAY_STALL, self._on_stall, qos.pipeline())
         if source == "odom":
             self.create_subscription(Odometry, topics.ODOM, self._on_odom, qos.pipeline(10000))
         elif source == "encoders":
@@ -138,11 +153,13 @@ class Predictor(Node):
         o = msg.pose.pose.orientation
         pose = np.array([msg.pose.pose.position.x, msg.pose.pose.position.y, float(quat_to_yaw(o.x, o.y, o.z, o.w))])
         self.odom_received += 1
-        if self._finite(pose, "odom"):
-            self.odom.add(convert.stamp_to_ns(msg.header.stamp), pose)
+        self.odom_arrived += 1
+        stamp = convert.stamp_to_ns(msg.header.stamp)
+        self.odom.add(stamp, pose if self._finite(pose, "odom") else None)  # a bad one keeps its place
         self._drain()
 
     def _on_encoders(self, raw: bytes) -> None:
+        self.odom_arrived += 1
         stamp, position = self._parse(cdr.joint_state_positions, raw, "encoders")
         if position is None or len(position) < 2:
             if position is not None:
@@ -151,15 +168,17 @@ class Predictor(Node):
             self.odom_received += 1  # counted: the end-of-stream count must still match
             return
         if not self._finite(position[:2], "encoders"):
-            self.odom_received += 1
-            return
-        self.encoders.append((stamp, float(position[0]), float(position[1])))
+            self.encoders.append((stamp, None, None))  # dropped, but keeps its place in the stream
+        else:
+            self.encoders.append((stamp, float(position[0]), float(position[1])))
         self._drain_odometry()
 
     def _on_fog_batch(self, raw: bytes) -> None:
         stamps, yaw = self._parse(cdr.fog_batch_yaw, raw, "fog")
         self.fog_received += 1  # counted even if bad: the end-of-stream count must still match
-        if stamps is not None and self._finite(yaw, "fog"):
+        if stamps is not None:
+            if not self._finite(yaw, "fog"):  # its samples count as no yaw: the stream goes on
+                yaw = np.where(np.isfinite(yaw), yaw, 0.0)
             self.gyro.add(stamps, yaw)
         self._drain_odometry()
 
@@ -180,8 +199,8 @@ class Predictor(Node):
         return False
 
     def _on_fog_vector(self, msg: Vector3Stamped) -> None:
-        if self._finite(np.array([msg.vector.z]), "fog"):
-            self.gyro.add([convert.stamp_to_ns(msg.header.stamp)], [msg.vector.z])
+        ok = self._finite(np.array([msg.vector.z]), "fog")
+        self.gyro.add([convert.stamp_to_ns(msg.header.stamp)], [msg.vector.z if ok else 0.0])
         self.fog_received += 1
         self._drain_odometry()
 
@@ -194,6 +213,8 @@ class Predictor(Node):
             dt = 0.0 if self.last_imu_ns is None else max(t - self.last_imu_ns, 0) / 1e9
             self.gyro.add([t], [rate * dt])
             self.last_imu_ns = t
+        else:  # the stream goes on; the next good rate covers the time since the last good one
+            self.gyro.add([t], [0.0])
         self.fog_received += 1
         self._drain_odometry()
 
@@ -204,14 +225,19 @@ class Predictor(Node):
         if not self.encoders:
             return
         if (self.gyro is None or self.gyro.last_stamp >= self.encoders[0][0]
-                or (self.fog_expected is not None and self.fog_received >= self.fog_expected)):
+                or (self.fog_expected is not None and self.fog_received >= self.fog_expected) or self._stalled()):
             self._drain()
 
     def _integrate_encoders(self) -> None:
         """Wheel steps -> odometry poses, each once the gyro covers its interval (deterministic)."""
-        fog_done = self.fog_expected is not None and self.fog_received >= self.fog_expected
+        fog_done = (self.fog_expected is not None and self.fog_received >= self.fog_expected) or self._stalled()
         while self.encoders:
             t, left, right = self.encoders[0]
+            if left is None:  # a bad message: no wheel step, its stamp resolves the scans at it
+                self.encoders.popleft()
+                self.odom.add_bad(t)
+                self.odom_received += 1
+                continue
             if self.gyro is not None:
                 if self.gyro.last_stamp < t and not fog_done:
                     return  # the gyro samples of this step are not all here yet
@@ -233,10 +259,15 @@ class Predictor(Node):
             stamp, (a_min, a_max, a_inc), ranges = cdr.laser_scan_ranges(raw)
             usable, faults = self.checks.check(stamp, ranges, a_min, a_max, a_inc)
         except ValueError as exc:
-            stamp, usable, faults = self.checks.last_stamp_ns or 0, False, self.checks.unreadable(exc)
+            # posed from odometry at its own stamp when the header is readable and plausible, else
+            # at the previous scan's stamp and odometry (without waiting)
+            stamp, usable = self.checks.readable_stamp(raw, cdr.CdrReader), False
+            faults = self.checks.unreadable(exc, stamp is not None)
         for kind, text in faults:
             self._fault(kind, f"scan {self.scan_count}: {text}")
-        self.scans.append((self.scan_count, stamp, usable, raw))
+        if stamp is not None and self.stamp_offset_ns > 0:
+            self._check_offset(stamp)
+        self.scans.append((self.scan_count, stamp, usable, raw, self.odom.received))
         self.scan_count += 1
         self._drain()
 
@@ -257,7 +288,9 @@ class Predictor(Node):
     def faults(self) -> dict[str, int]:
         """Every fault counter of the run so far (summary.json "faults")."""
         out = dict(self.checks.counts, odometry_nonfinite=self.odometry_nonfinite,
-                   odom_time_backwards=self.odom.backward_steps, odom_missing=self.odom.missing)
+                   odom_time_backwards=self.odom.backward_steps, odom_missing=self.odom.missing,
+                   odom_not_arrived=self.odom_forced, odom_stamp_offset=self.stamp_offset,
+                   odom_sync_fallback=int(self.odom.fallback is not None))
         if hasattr(self, "wheels"):
             out["encoder_jump"] = self.wheels.jumps
         if self.gyro is not None:
@@ -283,41 +316,122 @@ class Predictor(Node):
             self._publish_status()
         self._drain()
 
+    def _on_stall(self, msg: ReplayStatus) -> None:
+        self.stall = dict(zip(msg.topics, msg.counts))
+        self._drain()
+
+    def _stalled(self) -> bool:
+        """The replay stopped at max_in_flight, everything it published is here and no correction
+        is in flight: nothing more comes until a scan is posed (deterministic: the stall point
+        depends only on the data)."""
+        st = self.stall
+        return (st is not None and self.waiting_for is None and not self.deferred
+                and st.get(topics.POSE) == self.poses_published  # it waits for our next pose
+                and st.get(self.scan_topic, 0) == self.scan_count
+                and st.get(self.odom_topic, 0) == self.odom_arrived
+                and (self.gyro is None or st.get(self.fog_topic, 0) == self.fog_received))
+
     # ------------------------------------------------------------------ the work
     def _drain(self) -> None:
         if hasattr(self, "encoders"):
             self._integrate_encoders()
         while self.scans:
-            index, stamp, usable, raw = self.scans[0]
-            # a scan whose exact odometry never comes must not block the ones behind it
-            # end of stream: every odometry message of the bag is here, none will follow
-            final = (self.odom_expected is not None and self.odom_received >= self.odom_expected) or (
-                self.odom.sync == "exact" and len(self.scans) > 1
-                and self.odom.has_exact(self.scans[1][1], ahead=int(self.scans[1][1] == stamp)))
+            index, stamp, usable, raw, _ = self.scans[0]
+            if self.waiting_for is not None and index == self.blocked:
+                break  # a correction is in flight and this scan needs the next one
+            odom = self._odom_at(peek=self.waiting_for is not None)
+            if odom is None:
+                break
+            # without its own odometry the scan's pose is a guess: posed, not corrected or mapped with
+            usable = usable and not (self.odom.peek_missing if self.waiting_for is not None else self.odom.last_missing)
+            if stamp is None:  # unreadable: the previous scan's stamp (0 for a first scan)
+                stamp = self.prev_odom[0] if self.prev_odom is not None else 0
             if self.waiting_for is not None:
                 # a correction is in flight: queue pass-throughs, stop at the next update
-                if index == self.blocked:
-                    break
-                odom = self.odom.peek(stamp, final=final)
-                if odom is None:
-                    break
                 update, delta = self.stage.gate(odom)
                 if update and usable:
                     self.blocked = index  # decided: no need to look again on every message
                     break
-                self.odom.lookup(stamp, final=final)  # consume what peek saw
+                self._odom_at(peek=False)  # consume what peek saw
                 self.scans.popleft()
                 self._publish_odom_tf(odom, stamp)
                 self.deferred.append((index, stamp, odom, delta))
                 continue
-            odom = self.odom.lookup(stamp, final=final)
-            if odom is None:
-                break
             self.scans.popleft()
             self._publish_odom_tf(odom, stamp)
             self._predict(index, stamp, odom, usable, raw)
         self.odom.trim()
         self._maybe_send_end()
+
+    def _odom_at(self, peek: bool) -> np.ndarray | None:
+        """The odometry of the scan at the head of the queue, or None while it may still come.
+
+        It is known not to come (a pose is then always returned, the nearest earlier odometry,
+        counted in odom_missing): at the end of the bag; in exact pairing, once a later scan's
+        own odometry message has arrived; and when ``odom_wait_scans`` scans wait behind it (the
+        odometry stopped or lags by seconds: without this, --rate max would stall, as the replay
+        stops at max_in_flight scans). Exact pairing that finds no partner while later odometry
+        keeps arriving falls back to interpolation, with one warning."""
+        index, stamp = self.scans[0][:2]
+        if stamp is None:  # an unreadable scan: the previous scan's odometry, without waiting
+            if self.prev_odom is not None:
+                self.odom.last_missing = self.odom.peek_missing = False
+                return self.prev_odom[1].copy()
+            stamp = 0  # the first scan: the first odometry that arrives
+        end = self.odom_expected is not None and self.odom_received >= self.odom_expected
+        final = end or self.odom.later_paired([stamp] + [s[1] for s in list(self.scans)[1:LOOK_AHEAD]])
+        lookup = self.odom.peek if peek else self.odom.lookup
+        odom = lookup(stamp, final=final)
+        if odom is None and not final and self.scans[0][1] is not None:
+            why = self.odom.no_partner([s[1] for s in list(self.scans)[:LOOK_AHEAD]])
+            if why is not None:
+                self.odom.fall_back(scan=index, scans_without_partner=why[0], odometry_between=why[1])
+                self.get_logger().warn(
+                    f"odom_sync exact: scans {index}..: {why[0]} scans have no odometry message with their "
+                    f"stamp while {why[1]} odometry messages stamped between them arrived (the odometry "
+                    f"is not recorded with each scan); pairing by interpolation from scan {index} on. "
+                    f"Set odom_sync: interpolate for this input")
+                odom = lookup(stamp, final=False)
+        if odom is None and not final and (
+                self._stalled() or 0 < self.odom_wait_scans < len(self.scans)):
+            odom = lookup(stamp, final=True)
+            if not peek:
+                self.odom_forced += 1
+                newest = self.odom.progress_ns
+                why = ("the replay waits for its pose (max_in_flight)" if self._stalled() else
+                       f"{len(self.scans) - 1} scans wait behind it (odom_wait_scans)")
+                self._fault("odom_not_arrived", f"scan {index}: no odometry at or after its stamp while {why}; "
+                            "newest odometry " + ("none" if newest is None else
+                                                  f"{(newest - stamp) / 1e9:+.3f} s from it")
+                            + ": posed with the nearest earlier odometry")
+        if odom is not None and not peek and self.scans[0][1] is not None:
+            self.prev_odom = (self.scans[0][1], odom)
+        return odom
+
+    def _check_offset(self, stamp: int) -> None:
+        """Live check of the two clocks, at each scan: the newest odometry stamped more than
+        stamp_offset_s after the scan, or (while odometry keeps arriving) before it, for 3 scans
+        in a row (one scan is a race between the topics, or a stamp step of the Intel log)."""
+        newest, arriving = self.odom.progress_ns, self.odom_arrived > self._odom_arrived_at_scan
+        self._odom_arrived_at_scan = self.odom_arrived
+        how = None
+        if newest is not None and newest - stamp > self.stamp_offset_ns:
+            how = "ahead of"
+        elif newest is not None and arriving and stamp - newest > self.stamp_offset_ns:
+            how = "behind"
+        self._offset_run = self._offset_run + 1 if how else 0
+        if self._offset_run >= 3:
+            self._stamp_offset(stamp, abs(newest - stamp), how)
+
+    def _stamp_offset(self, stamp: int, by_ns: int, how: str) -> None:
+        self.stamp_offset += 1
+        if self.stamp_offset == 1:  # once, with the numbers (then throttled like every fault)
+            self.get_logger().warn(
+                f"odometry stamps {by_ns / 1e9:.3f} s {how} the scan stamps (scan {self.scan_count}, "
+                f"stamp {stamp / 1e9:.3f} s): the two clocks disagree, pairing is wrong by that much; "
+                f"counted in faults.odom_stamp_offset")
+        else:
+            self._fault("odom_stamp_offset", f"odometry {by_ns / 1e9:.3f} s {how} scan stamp {stamp / 1e9:.3f} s")
 
     def _predict(self, index: int, stamp: int, odom: np.ndarray, usable: bool, raw: bytes) -> None:
         if not usable:  # a scan the correlator cannot use: posed from odometry

@@ -20,5 +20,6 @@ PATH = "path"
 SCAN_CORRECTED = "pf_slam/scan_corrected"
 GRID = "pf_slam/grid"  # mapper -> correlator: the occupancy grid after every integration
 REPLAY_STATUS = "pf_slam/replay_status"  # bag_replay -> all: end of bag
+REPLAY_STALL = "pf_slam/replay_stall"  # bag_replay -> predictor: stopped at max_in_flight, counts so far
 READY = "pf_slam/ready"  # each stage, once its outputs are matched: the replay may start
 STATUS = "pf_slam/status"  # nodes -> recorder: JSON (fault counters), latched
