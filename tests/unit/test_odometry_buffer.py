@@ -122,10 +122,12 @@ def test_exact_missing_partners_resolved_when_a_later_scan_pairs():
 
 def test_interpolate_across_a_gap_counts_missing():
     buf = OdometryBuffer("interpolate")
-    _line(buf, [0, 10, 20, 30, 2000, 2010])  # 30 -> 2000 ns: 197 x the interval before
+    _line(buf, [0, 10, 20, 30, 2000, 2010])
     buf.GAP_MIN_NS = 100
     assert buf.lookup(25) is not None and not buf.last_missing
+    assert buf.lookup(120) is not None and not buf.last_missing  # 90 from the odometry at 30
     assert buf.lookup(1000)[0] == pytest.approx(100.0) and buf.last_missing
+    assert buf.lookup(1950) is not None and not buf.last_missing
     assert buf.lookup(2000)[0] == 200.0 and not buf.last_missing  # its own message
 
 

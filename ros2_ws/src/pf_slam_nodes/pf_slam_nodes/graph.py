@@ -202,33 +202,112 @@ def input_report(bag: str, info: dict, inputs: dict[str, str], predictor: dict[s
     return "\n".join(lines)
 
 
-def detect_inputs(bag: str, info: dict, inputs: dict[str, str] | None = None) -> dict[str, dict[str, Any]]:
+#: header stamps of two streams offset by more than this (median of header - record time) are
+#: on different clocks; a step of header - record time larger than STAMP_JUMP_NS is a jump
+STAMP_OFFSET_NS = 500_000_000
+STAMP_JUMP_NS = 1_000_000_000
+
+
+def inspect_stamps(bag: str, inputs: dict[str, str], max_scans: int = 200) -> dict[str, Any]:
+    """The header stamps of the scans and the odometry against the bag's record times (the
+    first `max_scans` scans and the odometry among them), and what the replay must do about them.
+
+    Per stream: header stamps that are stuck (at least half of them equal to the previous one
+    while the record time advances) or that jump against the record time (5 % of the steps by
+    more than 1 s) cannot be right: the stream is replayed with its record times ("record").
+    Then the two streams' clocks: when the median of header - record time differs by more than
+    0.5 s between them (scan and odometry stamps that do not overlap while their record times
+    do), the odometry is shifted onto the scans' clock (an int: ns to add). Not done when a gyro
+    stream is used (its per-sample stamps are not rewritten): then only reported.
+
+    Returns {"restamp": {topic: "record" | shift_ns}, "notes": {topic: why, with numbers},
+    "pairing": (scans with an odometry message of the same stamp, scans checked), "scan_frame"},
+    the pairing counted on the stamps as they will be replayed."""
+    scan_topic = inputs["scan"]
+    odom_topic = inputs["odom" if "odom" in inputs else "encoders"]
+    rows: dict[str, list[tuple[int, int]]] = {scan_topic: [], odom_topic: []}
+    scan_frame = None
+    for t, msgtype, rec, raw in read_bag(bag, topics=[scan_topic, odom_topic]):
+        try:
+            msg = deserialize(raw, msgtype)
+        except Exception:  # an unreadable message: the predictor counts it at run time
+            continue
+        rows[t].append((stamp_ns_of(msg), rec))
+        if t == scan_topic:
+            scan_frame = msg.header.frame_id
+            if len(rows[t]) >= max_scans:
+                break
+    arr = {t: np.array(r, dtype=np.int64).reshape(-1, 2) for t, r in rows.items()}
+    restamp: dict[str, Any] = {}
+    notes: dict[str, str] = {}
+    for topic, a in arr.items():
+        if len(a) < 10:
+            continue
+        steps = len(a) - 1
+        hdr, rec = a[:, 0], a[:, 1]
+        stuck = int(np.count_nonzero((np.diff(hdr) == 0) & (np.diff(rec) > 0)))
+        jumps = int(np.count_nonzero(np.abs(np.diff(hdr - rec)) > STAMP_JUMP_NS))
+        if stuck >= 0.5 * steps:
+            restamp[topic] = "record"
+            notes[topic] = (f"header stamps stuck: {stuck} of {steps} equal to the previous one while the "
+                            f"record time advances ({(rec[-1] - rec[0]) / 1e9:.1f} s); replayed with the record times")
+        elif jumps >= 0.05 * steps:
+            restamp[topic] = "record"
+            notes[topic] = (f"header stamps do not follow the record time: {jumps} of {steps} steps jump by "
+                            f"more than {STAMP_JUMP_NS / 1e9:.0f} s against it; replayed with the record times")
+
+    def lag(topic: str) -> int:  # median header - record time of the stream as it will be replayed
+        a = arr[topic]
+        return 0 if restamp.get(topic) == "record" or not len(a) else int(np.median(a[:, 0] - a[:, 1]))
+
+    if len(arr[scan_topic]) and len(arr[odom_topic]):
+        off = lag(scan_topic) - lag(odom_topic)
+        if abs(off) > STAMP_OFFSET_NS:
+            fix = "fog" not in inputs and "imu" not in inputs
+            notes[odom_topic] = (
+                f"stamps {-off / 1e9:+.3f} s from the scans' (median header - record time: {scan_topic} "
+                f"{lag(scan_topic) / 1e9:+.3f} s, {odom_topic} {lag(odom_topic) / 1e9:+.3f} s): "
+                + ("shifted onto the scans' clock" if fix else "NOT corrected (a gyro stream is used); "
+                   "the pairing is wrong by that much"))
+            if fix:
+                restamp[odom_topic] = int(off) if restamp.get(odom_topic) != "record" else "record"
+
+    def replayed(topic: str) -> np.ndarray:
+        a, fix = arr[topic], restamp.get(topic)
+        return a[:, 1] if fix == "record" else a[:, 0] + (fix or 0)
+
+    scans = replayed(scan_topic)
+    odom = set(replayed(odom_topic).tolist())
+    paired = int(sum(int(s) in odom for s in scans))
+    return {"restamp": restamp, "notes": notes, "pairing": (paired, len(scans)), "scan_frame": scan_frame}
+
+
+def restamp_param(restamp: dict[str, Any]) -> str:
+    """{'/scan': 'record', '/odom': 3000000000} -> '/scan=record,/odom=3000000000' (bag_replay's `restamp`)."""
+    return ",".join(f"{t}={v}" for t, v in sorted(restamp.items()))
+
+
+def detect_inputs(bag: str, info: dict, inputs: dict[str, str] | None = None,
+                  stamps: dict[str, Any] | None = None) -> dict[str, dict[str, Any]]:
     """Parameters implied by the bag: odometry source and pairing, gyro, wheel geometry (from a
     converted bag's custom data), and the laser's 3D mounting (from /tf_static) when it is tilted.
-    `inputs`: select_inputs()'s choice (default: select_inputs(bag, info))."""
+    `inputs`: select_inputs()'s choice (default: select_inputs(bag, info)); `stamps`:
+    inspect_stamps()'s answer (default: computed here). The pairing: what the converter wrote in
+    the bag's custom data (pf_slam.odom_sync), else exact when 90 % of the first 200 scans have an
+    odometry message with their stamp (as replayed), else interpolate."""
     topics = info["topics"]
     inputs = select_inputs(bag, info) if inputs is None else inputs
     check_run_inputs(_canonical_view(info, inputs))  # BagError: an input without messages, unknown types
     scan_topic = inputs["scan"]
     source = "odom" if "odom" in inputs else "encoders"
-    topic = inputs[source]
-    scan_stamps, odom_stamps, scan_frame = [], set(), None
-    for t, msgtype, _, raw in read_bag(bag, topics=[scan_topic, topic]):
-        try:
-            msg = deserialize(raw, msgtype)
-        except Exception:  # an unreadable message: the predictor counts it at run time
-            continue
-        ns = stamp_ns_of(msg)
-        if t == scan_topic:
-            scan_stamps.append(ns)
-            scan_frame = msg.header.frame_id
-        else:
-            odom_stamps.add(ns)
-        if len(scan_stamps) >= 200:
-            break
-    exact = bool(scan_stamps) and sum(s in odom_stamps for s in scan_stamps) >= 0.9 * len(scan_stamps)
-    predictor: dict[str, Any] = {"odometry_source": source, "odom_sync": "exact" if exact else "interpolate"}
+    stamps = inspect_stamps(bag, inputs) if stamps is None else stamps
+    scan_frame = stamps["scan_frame"]
+    paired, checked = stamps["pairing"]
+    exact = checked > 0 and paired >= 0.9 * checked
     custom = info.get("custom_data", {})
+    if custom.get("pf_slam.odom_sync") in ("exact", "interpolate") and not stamps["restamp"]:
+        exact = custom["pf_slam.odom_sync"] == "exact"
+    predictor: dict[str, Any] = {"odometry_source": source, "odom_sync": "exact" if exact else "interpolate"}
     if source == "encoders":
         if "pf_slam.wheel_radius_m" in custom:  # written by `convert mines`
             d = 2.0 * float(custom["pf_slam.wheel_radius_m"])
@@ -256,6 +335,35 @@ def detect_inputs(bag: str, info: dict, inputs: dict[str, str] | None = None) ->
     for node, params in tf_inputs(topics, scan_tf).items():
         out.setdefault(node, {}).update(params)
     return out
+
+
+def _check_stamps_and_pairing(bag: str, stamps: dict[str, Any], per_node: dict[str, dict[str, Any]],
+                              params_file: str | None) -> dict[str, Any]:
+    """Apply inspect_stamps()'s fixes to the replay, and refuse a pairing that cannot work on
+    this bag: odom_sync exact (from a parameter file or a flag) where fewer than 90 % of the
+    scans checked have an odometry message with their stamp would pair nothing; interpolate is
+    used instead. Returns {"warnings": [...], "odom_sync": {...}, "timestamps": {...}} for the
+    run's output and summary.json."""
+    warnings, timestamps = [], {}
+    for topic, why in sorted(stamps["notes"].items()):
+        fix = stamps["restamp"].get(topic)
+        timestamps[topic] = {"fix": ("record time" if fix == "record" else
+                                     None if fix is None else f"{fix / 1e9:+.3f} s"), "why": why}
+        warnings.append(f"{bag}: {topic}: {why}")
+    if stamps["restamp"]:
+        per_node["bag_replay"]["restamp"] = restamp_param(stamps["restamp"])
+    pred = per_node["predictor"]
+    paired, checked = stamps["pairing"]
+    sync = {"used": pred.get("odom_sync", "interpolate"), "scans_checked": checked, "with_odometry_stamp": paired}
+    if sync["used"] == "exact" and checked and paired < 0.9 * checked:
+        where = f" (from {params_file} or a flag)" if params_file else " (from a flag)"
+        warnings.append(f"{bag}: odom_sync exact{where} cannot work on this bag: only {paired} of the first "
+                        f"{checked} scans have an odometry message with their stamp (the odometry is logged "
+                        f"at its own times); pairing by interpolation instead. Set odom_sync: interpolate "
+                        f"(or leave it out: pf-slam run picks it from the bag)")
+        pred["odom_sync"] = "interpolate"
+        sync.update(requested="exact", used="interpolate")
+    return {"warnings": warnings, "odom_sync": sync, "timestamps": timestamps}
 
 
 def tf_inputs(topics: dict, scan_tf) -> dict[str, dict[str, Any]]:
@@ -609,7 +717,8 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     texture = (texture and "stereo_right" in inputs
                and info["topics"].get(inputs.get("stereo_left", ""), (None, 0))[1] > 0)  # images, not just the topic
     node_names = NODE_NAMES + (("texture",) if texture else ())
-    layers = [detect_inputs(bag, info, inputs)]
+    stamps = inspect_stamps(bag, inputs)
+    layers = [detect_inputs(bag, info, inputs, stamps)]
     if file_layer:
         layers.append(file_layer)
     layers.append({"bag_replay": {"bag": str(bag), "rate": str(rate)},
@@ -624,6 +733,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     # the replay says when it stopped for the poses (pf_slam/replay_stall): that, not the number
     # of scans waiting (odom_wait_scans, for live inputs), decides that odometry will not come
     per_node["predictor"].setdefault("odom_wait_scans", 0)
+    checks = _check_stamps_and_pairing(str(bag), stamps, per_node, params_file)
     if str(per_node["bag_replay"].get("rate", "max")) == "max":
         # arrival times say nothing about the clocks at --rate max (the bag's stamps were checked
         # before the run: inspect_stamps)
@@ -634,6 +744,8 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     remaps = topic_remaps(inputs)
     if progress:
         print(input_report(str(bag), info, inputs, per_node["predictor"]), file=sys.stderr)
+    for line in checks["warnings"]:  # once, with the numbers, also without progress output
+        print(f"[pf-slam] warning: {line}", file=sys.stderr)
     bag_duration_s = info["duration_ns"] / 1e9
     if domain_id is None:
         domain_id = int(os.environ.get("ROS_DOMAIN_ID", "0"))
@@ -756,7 +868,10 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         "peak_rss_mb": round(peak, 1),
         "snapshots_written": rec.snapshots_written,
         "snapshots_skipped": rec.snapshots_skipped,
-        "faults": rec.faults(),
+        "faults": {**(f := rec.faults()), "timestamps_fixed": len(checks["timestamps"]),
+                   "odom_sync_fallback": f.get("odom_sync_fallback", 0) + int("requested" in checks["odom_sync"])},
+        "odom_sync": checks["odom_sync"],
+        **({"timestamps": checks["timestamps"]} if checks["timestamps"] else {}),
         **({"gyro": gyro} if (gyro := rec.node_status.get("predictor", {}).get("gyro")) else {}),
         "complete": stopped_by is None,
         **({} if stopped_by is None else {"stopped_by": stopped_by}),

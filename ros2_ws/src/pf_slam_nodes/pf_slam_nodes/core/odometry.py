@@ -63,6 +63,7 @@ class OdometryBuffer:
         self.progress_ns: Optional[int] = None  # the latest stamp of any message, good or bad
         self.fallback: Optional[dict] = None
         self.last_missing = self.peek_missing = False
+        self._unpaired: list[int] = []  # exact: stamps of the scans just resolved without a partner
 
     def __len__(self) -> int:
         return len(self._stamps)
@@ -125,7 +126,8 @@ class OdometryBuffer:
     def no_partner(self, stamps: list) -> Optional[tuple[int, int]]:
         """Exact: is the pairing impossible for this input? ``stamps``: the queued scans' stamps,
         head first (None: a scan without one). True evidence, not a delay: at least
-        ``NO_PARTNER_SCANS`` queued scans that the odometry has already passed (stamped before
+        ``NO_PARTNER_SCANS`` scans (the queued ones and those just resolved without a partner,
+        e.g. because the replay waited for their poses) that the odometry has passed (stamped before
         its newest message) have no odometry message with their stamp, while odometry messages
         stamped *between* them did arrive (a log whose odometry comes in its own messages at
         other times). A stretch without any odometry (messages lost) is not this: nothing
@@ -133,7 +135,7 @@ class OdometryBuffer:
         them), or None."""
         if self.sync != "exact" or self.progress_ns is None:
             return None
-        covered = [t for t in stamps if t is not None and t < self.progress_ns]
+        covered = self._unpaired + [t for t in stamps if t is not None and t < self.progress_ns]
         if len(covered) < self.NO_PARTNER_SCANS or any(self.has_exact(t) for t in covered):
             return None
         lo, hi = min(covered), max(covered)
@@ -173,16 +175,12 @@ class OdometryBuffer:
         return next((k for k in range(i + 1, len(self._poses)) if self._poses[k] is not None
                      and (after_ns is None or self._stamps[k] > after_ns)), None)
 
-    #: a bracket between two good poses is a gap in the odometry (the scans in it count as
-    #: missing) when longer than this and than GAP_FACTOR x the interval before it
+    #: a scan interpolated from odometry more than this far away on both sides lies in a gap of
+    #: the odometry: its pose is a guess (counted as missing)
     GAP_MIN_NS = 500_000_000
-    GAP_FACTOR = 10
 
-    def _is_gap(self, i: int, k: int) -> bool:
-        span = self._stamps[k] - self._stamps[i]
-        h = self._good_at_or_before(i - 1)
-        before = self._stamps[i] - self._stamps[h] if h is not None else 0
-        return span > max(self.GAP_MIN_NS, self.GAP_FACTOR * before)
+    def _in_gap(self, stamp_ns: int, i: int, k: int) -> bool:
+        return min(stamp_ns - self._stamps[i], self._stamps[k] - stamp_ns) > self.GAP_MIN_NS
 
     def _between(self, stamp_ns: int, i: Optional[int], k: Optional[int]) -> Optional[np.ndarray]:
         """Interpolation between the good poses i and k when the stamp lies strictly between
@@ -209,6 +207,7 @@ class OdometryBuffer:
                 if commit:
                     self._scan_seen[stamp_ns] += 1
                     self._cursor = hits[n]
+                    self._unpaired.clear()
                 return self._poses[hits[n]].copy(), False
             if n >= len(hits) and not final:
                 return None, False
@@ -224,6 +223,8 @@ class OdometryBuffer:
                 pose = self._nearest_good(self._cursor)
             if commit:
                 self._scan_seen[stamp_ns] += 1
+                if n >= len(hits):  # no partner at all (not a bad one): evidence for no_partner
+                    self._unpaired = self._unpaired[-self.NO_PARTNER_SCANS:] + [stamp_ns]
             return (np.zeros(3) if pose is None else pose), True
         # interpolate: first odometry message at or after the stamp, from the cursor on
         j = self._cursor
@@ -243,7 +244,7 @@ class OdometryBuffer:
         missing = g != j  # its own message was bad: bracketed across the bad ones
         p1 = self._poses[g]
         i = None if j == 0 else self._good_at_or_before(j - 1)
-        if i is not None and stamps[g] != stamp_ns and self._is_gap(i, g):
+        if i is not None and self._in_gap(stamp_ns, i, g):
             missing = True  # bracketed across a stretch without odometry: a guess
         if i is None or stamps[g] == stamp_ns:
             return p1.copy(), missing

@@ -55,7 +55,7 @@ class ConvertReport:
     ``counts``: messages per topic; ``skipped``: input lines skipped per reason; ``warnings``:
     human-readable lines from the reader and the converter; ``retimed``: log lines whose
     messages' record time was moved forward (header stamps kept); ``start_ns`` / ``end_ns``:
-    first / last record time; ``out_bag``, ``storage``, ``source``.
+    first / last record time; ``out_bag``, ``storage``, ``source``; ``odom_sync``.
     """
 
     source: str
@@ -67,6 +67,7 @@ class ConvertReport:
     retimed: int = 0
     start_ns: int = 0
     end_ns: int = 0
+    odom_sync: str = ''  # CARMEN: how the scans pair with the odometry (also in the bag's custom data)
 
     @property
     def duration_s(self) -> float:
@@ -131,6 +132,16 @@ def convert_carmen(log_path: str | os.PathLike, out_bag: str | os.PathLike,
     report = ConvertReport(source=str(log_path), out_bag=str(out_bag), storage=storage,
                            skipped=dict(log.skipped), warnings=list(log.warnings))
     use_odom_lines = bool(log.odoms)
+    report.odom_sync = 'exact'
+    if use_odom_lines:
+        odom_stamps = {o.stamp_ns for o in log.odoms}
+        paired = sum(s.stamp_ns in odom_stamps for s in log.scans)
+        if paired < 0.9 * len(log.scans):
+            report.odom_sync = 'interpolate'
+            report.warnings.append(
+                f'odometry from {len(log.odoms)} ODOM lines, logged at their own times ({paired} of '
+                f'{len(log.scans)} scans have an ODOM line with their stamp): the bag says '
+                f'odom_sync interpolate')
     events: list = [(s.line_no, s) for s in log.scans]
     if use_odom_lines:
         events += [(o.line_no, o) for o in log.odoms]
@@ -148,6 +159,9 @@ def convert_carmen(log_path: str | os.PathLike, out_bag: str | os.PathLike,
         bag.add_connection(TOPIC_SCAN, 'sensor_msgs/msg/LaserScan')
         bag.set_custom_data('pf_slam.source', os.path.basename(str(log_path)))
         bag.set_custom_data('pf_slam.odom_source', 'ODOM' if use_odom_lines else 'laser lines')
+        # how the scans pair with the odometry (pf-slam run uses it: the laser lines' own
+        # odometry shares their stamps; ODOM lines are logged at their own times)
+        bag.set_custom_data('pf_slam.odom_sync', report.odom_sync)
         t0 = events[0][1].stamp_ns
         bag.write(TOPIC_TF_STATIC, t0, tf_static(
             t0, [(base_frame, laser_frame, (lx, ly, 0.0), yaw_to_quat(lyaw))]))

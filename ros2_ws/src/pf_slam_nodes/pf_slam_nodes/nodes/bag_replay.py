@@ -50,6 +50,20 @@ def parse_rate(rate: str) -> float | None:
     return r
 
 
+def parse_restamp(text: str) -> dict[str, object]:
+    """'/scan=record,/odom=3000000000' -> {'/scan': 'record', '/odom': 3000000000}: the topics
+    whose header stamps are replaced by the record time, or shifted by that many ns (pf-slam run
+    sets it from the bag's stamps: graph.inspect_stamps)."""
+    out: dict[str, object] = {}
+    for item in filter(None, (p.strip() for p in text.split(","))):
+        topic, _, v = item.partition("=")
+        try:
+            out[topic] = "record" if v == "record" else int(v)
+        except ValueError:
+            raise ValueError(f"parameter 'restamp': {item!r} is not TOPIC=record or TOPIC=NANOSECONDS") from None
+    return out
+
+
 class BagReplay(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("bag_replay", **kwargs)
@@ -60,6 +74,8 @@ class BagReplay(Node):
         self.max_in_flight = param(self, "max_in_flight", 100)
         self.scan_topic = param(self, "scan_topic", "/scan")
         self.clock_period_ns = int(param(self, "clock_period_s", 0.01) * 1e9)
+        self.restamp = parse_restamp(param(self, "restamp", ""))
+        self.restamp_failed = 0
         self.ready_nodes: set[str] = set()
         # the nodes whose pf_slam/ready announcement the replay waits for
         self.wait_for = set(param(self, "wait_for", ["predictor", "correlator", "mapper"]))
@@ -135,6 +151,9 @@ class BagReplay(Node):
                 due = self.t0_wall + (stamp_ns - self.t0_bag) / 1e9 / self.rate
                 if time.monotonic() < due:
                     return
+            fix = self.restamp.get(topic)
+            if fix is not None:
+                raw = self._restamped(raw, stamp_ns, fix)
             self.publishers_[topic].publish(raw)
             self.published[topic] += 1
             if topic == self.scan_topic:
@@ -151,6 +170,14 @@ class BagReplay(Node):
         self.get_logger().info(f"end of bag: {sum(self.published.values())} messages, "
                                f"{self.scans_published} scans published")
 
+
+    def _restamped(self, raw: bytes, record_ns: int, fix) -> bytes:
+        """The header stamp replaced by the record time ("record") or shifted by `fix` ns."""
+        try:
+            return cdr.with_header_stamp(raw, record_ns if fix == "record" else cdr.header_stamp(raw) + fix)
+        except ValueError:  # unreadable: published as recorded (the predictor counts it)
+            self.restamp_failed += 1
+            return raw
 
     def _counts(self, done: bool) -> ReplayStatus:
         topics_ = sorted(self.published)

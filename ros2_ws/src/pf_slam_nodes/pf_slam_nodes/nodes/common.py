@@ -38,6 +38,8 @@ CONFIG_SECTIONS: dict[str, type] = {
 PARAM_DOCS: dict[str, str] = {
     "bag": "rosbag2 to replay (folder or file; mcap or sqlite3); required",
     "rate": "'max': as fast as the pipeline takes it, lossless (paced on pose); N: N x real time (s/s)",
+    "restamp": "topics whose header stamps are rewritten as replayed: 'TOPIC=record' (the bag's record time) or "
+               "'TOPIC=NS' (shifted by NS ns), comma-separated; pf-slam run sets it when the bag's stamps cannot be right",
     "max_in_flight": "rate max: at most this many scans published and not yet posed",
     "scan_topic": "the bag's LaserScan topic (pacing, end-of-bag counts)",
     "scan_subscribers": "subscriptions the scan topic must have matched before the replay starts",

@@ -207,3 +207,17 @@ def tf_message_stamp(raw: bytes) -> int | None:
     """tf2_msgs/TFMessage bytes -> the first transform's header stamp (ns); None if empty."""
     r = CdrReader(raw, "tf2_msgs/TFMessage")
     return r.stamp_ns() if r.u32() else None
+
+
+def header_stamp(raw: bytes) -> int:
+    """The header stamp (ns) of a message whose first field is a std_msgs/Header."""
+    return CdrReader(raw, "message with a header").stamp_ns()
+
+
+def with_header_stamp(raw: bytes, stamp_ns: int) -> bytes:
+    """The same message with its header stamp replaced (the stamp sits right after the 4-byte
+    CDR header: int32 sec, uint32 nanosec, in the message's byte order)."""
+    if len(raw) < 12 or raw[0] != 0 or raw[1] not in (0, 1):
+        raise ValueError(f"not a CDR-serialized message ({len(raw)} bytes)")
+    sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
+    return b"".join((bytes(raw[:4]), struct.pack("<iI" if raw[1] == 1 else ">iI", sec, nsec), bytes(raw[12:])))
