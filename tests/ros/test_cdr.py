@@ -107,3 +107,28 @@ def test_transform_writer_is_a_tf_message(parent, child):
     pose, stamp = np.array([3.5, -1.25, -2.0]), 1_700_000_001_000_000_007
     raw = cdr.TransformWriter(parent, child).pack(pose, stamp)
     assert deserialize_message(raw, TFMessage) == TFMessage(transforms=[convert.transform(parent, child, pose, stamp)])
+
+
+@pytest.mark.parametrize("stamp", [0, 1_700_000_000_123_456_789, -5_000_000_001])
+def test_with_header_stamp_rewrites_only_the_stamp(stamp):
+    """bag_replay's restamp: the header stamp replaced in the bytes, the rest untouched."""
+    m = LaserScan()
+    m.header.stamp.sec, m.header.stamp.nanosec = 12, 34
+    m.header.frame_id = "laser"
+    m.ranges = [1.0, 2.0, float("inf")]
+    raw = bytes(serialize_message(m))
+    out = cdr.with_header_stamp(raw, stamp)
+    back = deserialize_message(out, LaserScan)
+    assert back.header.stamp.sec * 1_000_000_000 + back.header.stamp.nanosec == stamp
+    assert cdr.header_stamp(out) == stamp and len(out) == len(raw) and out[12:] == raw[12:]
+    assert list(back.ranges) == [1.0, 2.0, float("inf")] and back.header.frame_id == "laser"
+    with pytest.raises(ValueError):
+        cdr.with_header_stamp(b"\x00\x01\x00", stamp)
+
+
+def test_parse_restamp():
+    from pf_slam_nodes.nodes.bag_replay import parse_restamp
+    assert parse_restamp("") == {}
+    assert parse_restamp("/scan=record,/odom=-3000000000") == {"/scan": "record", "/odom": -3_000_000_000}
+    with pytest.raises(ValueError, match="restamp"):
+        parse_restamp("/odom=3s")
