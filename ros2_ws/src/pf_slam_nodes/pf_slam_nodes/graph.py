@@ -215,9 +215,10 @@ def inspect_stamps(bag: str, inputs: dict[str, str], max_scans: int = 200) -> di
     Per stream: header stamps that are stuck (at least half of them equal to the previous one
     while the record time advances) or that jump against the record time (5 % of the steps by
     more than 1 s) cannot be right: the stream is replayed with its record times ("record").
-    Then the two streams' clocks: when the median of header - record time differs by more than
-    0.5 s between them (scan and odometry stamps that do not overlap while their record times
-    do), the odometry is shifted onto the scans' clock (an int: ns to add). Not done when a gyro
+    Then the two streams' clocks: each scan against the odometry message nearest to it in record
+    time; when their header stamps are, in the median, more than 0.5 s further apart than their
+    record times (scan and odometry stamps that do not overlap while their record times do), the
+    odometry is shifted onto the scans' clock (an int: ns to add). Not done when a gyro
     stream is used (its per-sample stamps are not rewritten): then only reported.
 
     Returns {"restamp": {topic: "record" | shift_ns}, "notes": {topic: why, with numbers},
@@ -256,25 +257,31 @@ def inspect_stamps(bag: str, inputs: dict[str, str], max_scans: int = 200) -> di
             notes[topic] = (f"header stamps do not follow the record time: {jumps} of {steps} steps jump by "
                             f"more than {STAMP_JUMP_NS / 1e9:.0f} s against it; replayed with the record times")
 
-    def lag(topic: str) -> int:  # median header - record time of the stream as it will be replayed
-        a = arr[topic]
-        return 0 if restamp.get(topic) == "record" or not len(a) else int(np.median(a[:, 0] - a[:, 1]))
+    def replayed(topic: str) -> np.ndarray:
+        a, fix = arr[topic], restamp.get(topic)
+        return a[:, 1] if fix == "record" else a[:, 0] + (fix or 0)
 
     if len(arr[scan_topic]) and len(arr[odom_topic]):
-        off = lag(scan_topic) - lag(odom_topic)
+        # each scan against the odometry message nearest to it in record time: how much further
+        # apart their header stamps are than their record times (robust to a gap or a jump
+        # that both streams share)
+        s_hdr, s_rec = replayed(scan_topic), arr[scan_topic][:, 1]
+        o_hdr, o_rec = replayed(odom_topic), arr[odom_topic][:, 1]
+        order = np.argsort(o_rec, kind="stable")
+        o_hdr, o_rec = o_hdr[order], o_rec[order]
+        j = np.clip(np.searchsorted(o_rec, s_rec), 1, len(o_rec) - 1) if len(o_rec) > 1 else np.zeros(len(s_rec), int)
+        if len(o_rec) > 1:
+            j = np.where(np.abs(o_rec[j - 1] - s_rec) <= np.abs(o_rec[j] - s_rec), j - 1, j)
+        off = int(np.median((s_hdr - o_hdr[j]) - (s_rec - o_rec[j])))
         if abs(off) > STAMP_OFFSET_NS:
             fix = "fog" not in inputs and "imu" not in inputs
             notes[odom_topic] = (
-                f"stamps {-off / 1e9:+.3f} s from the scans' (median header - record time: {scan_topic} "
-                f"{lag(scan_topic) / 1e9:+.3f} s, {odom_topic} {lag(odom_topic) / 1e9:+.3f} s): "
+                f"stamps {-off / 1e9:+.3f} s from the scans' (median over {len(s_rec)} scans of the header stamp "
+                f"difference to the odometry nearest in record time, less their record time difference): "
                 + ("shifted onto the scans' clock" if fix else "NOT corrected (a gyro stream is used); "
                    "the pairing is wrong by that much"))
             if fix:
                 restamp[odom_topic] = int(off) if restamp.get(odom_topic) != "record" else "record"
-
-    def replayed(topic: str) -> np.ndarray:
-        a, fix = arr[topic], restamp.get(topic)
-        return a[:, 1] if fix == "record" else a[:, 0] + (fix or 0)
 
     scans = replayed(scan_topic)
     odom = set(replayed(odom_topic).tolist())

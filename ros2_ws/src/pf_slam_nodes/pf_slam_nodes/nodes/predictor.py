@@ -31,6 +31,7 @@ second, and once more, "final", when the last scan of the bag is posed) for summ
 from __future__ import annotations
 
 from collections import deque
+from itertools import islice
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped, Vector3Stamped
@@ -366,12 +367,13 @@ class Predictor(Node):
     def _odom_at(self, peek: bool) -> np.ndarray | None:
         """The odometry of the scan at the head of the queue, or None while it may still come.
 
-        It is known not to come (a pose is then always returned, the nearest earlier odometry,
-        counted in odom_missing): at the end of the bag; in exact pairing, once a later scan's
-        own odometry message has arrived; and when ``odom_wait_scans`` scans wait behind it (the
-        odometry stopped or lags by seconds: without this, --rate max would stall, as the replay
-        stops at max_in_flight scans). Exact pairing that finds no partner while later odometry
-        keeps arriving falls back to interpolation, with one warning."""
+        It is known not to come (a pose is then always returned, see OdometryBuffer, counted in
+        odom_missing): at the end of the bag; in exact pairing, once a later scan's own odometry
+        message has arrived; when the replay stopped at max_in_flight and all it sent is here
+        (_stalled; without this --rate max would wait for ever) or, live, ``odom_wait_scans``
+        scans wait behind it (both counted in odom_not_arrived). Exact pairing that finds no
+        partner while odometry stamped between the scans arrives falls back to interpolation,
+        with one warning."""
         index, stamp = self.scans[0][:2]
         if stamp is None:  # an unreadable scan: the previous scan's odometry, without waiting
             if self.prev_odom is not None:
@@ -379,11 +381,11 @@ class Predictor(Node):
                 return self.prev_odom[1].copy()
             stamp = 0  # the first scan: the first odometry that arrives
         end = self.odom_expected is not None and self.odom_received >= self.odom_expected
-        final = end or self.odom.later_paired([stamp] + [s[1] for s in list(self.scans)[1:LOOK_AHEAD]])
+        final = end or self.odom.later_paired([stamp] + [s[1] for s in islice(self.scans, 1, LOOK_AHEAD)])
         lookup = self.odom.peek if peek else self.odom.lookup
         odom = lookup(stamp, final=final)
         if odom is None and not final and self.scans[0][1] is not None:
-            why = self.odom.no_partner([s[1] for s in list(self.scans)[:LOOK_AHEAD]])
+            why = self.odom.no_partner([s[1] for s in islice(self.scans, LOOK_AHEAD)])
             if why is not None:
                 self.odom.fall_back(scan=index, scans_without_partner=why[0], odometry_between=why[1])
                 self.get_logger().warn(
