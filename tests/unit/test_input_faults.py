@@ -292,3 +292,50 @@ def test_corrupt_bytes_inside_a_bag_raise_bag_error(tmp_path, storage):
         for _ in read_bag(bag):
             n += 1
     assert n < 4000  # stopped at the damage
+
+
+# ------------------------------------------------------------------------ pf-slam run: bad parameters
+@pytest.mark.parametrize('args, yaml_text, needles', [
+    (['--particles', '0'], None, ["the command line (--particles): parameter 'filter.num_particles'",
+                                  'num_particles must be >= 1, got 0']),
+    ([], '/**:\n  ros__parameters:\n    num_partcles: 500\n',
+     ["section '/**': unknown parameter 'num_partcles'", "nearest known: 'filter.num_particles'"]),
+    ([], '/**:\n  ros__parameters:\n    filter: {num_particles: 0}\n',
+     ["p.yaml, section '/**': parameter 'filter.num_particles'", 'must be >= 1, got 0']),
+    ([], 'correlator:\n  ros__parameters:\n    correlation.search_x_m: fast\n',
+     ["p.yaml, section 'correlator': parameter 'correlation.search_x_m'"]),
+    ([], '/**:\n  ros__parameters:\n    filter: {num_particles: 5\n', ['p.yaml:4:1: cannot read parameter file: not valid YAML: ']),
+    (['--rate', 'fast'], None, ["the command line (--rate): parameter 'rate'"]),
+])
+def test_cli_run_bad_parameters_one_line_nothing_written(tmp_path, args, yaml_text, needles):
+    """Checked before anything is created: one line naming the flag or file+section and the
+    parameter; --out is not created, and a pre-existing --out keeps exactly what it had."""
+    bag = _run_bag(tmp_path / 'bag')
+    if yaml_text is not None:
+        (tmp_path / 'p.yaml').write_text(yaml_text)
+        args = args + ['--params', tmp_path / 'p.yaml']
+    out = tmp_path / 'new' / 'run'
+    assert_fatal(cli('run', bag, '--out', out, *args), 'run', *needles)
+    assert not (tmp_path / 'new').exists()
+    mine = tmp_path / 'mine'
+    mine.mkdir()
+    (mine / 'notes.txt').write_text('keep')
+    assert_fatal(cli('run', bag, '--out', mine, *args), 'run', *needles)
+    assert sorted(p.name for p in mine.iterdir()) == ['notes.txt']
+
+
+@pytest.mark.parametrize('processes', ['single', 'multi'])
+def test_cli_run_node_refusing_a_parameter_leaves_no_out(tmp_path, processes, ros_domain):
+    """A value only the node itself checks (odometry_source 'gps') fails when the node is built
+    (in this process, or in its own with --processes multi): the last line names the node and
+    the parameter, exit 1, and what the run had created is removed."""
+    bag = _run_bag(tmp_path / 'bag')
+    (tmp_path / 'p.yaml').write_text('predictor:\n  ros__parameters:\n    odometry_source: gps\n')
+    out = tmp_path / 'run'
+    res = cli('run', bag, '--out', out, '--params', tmp_path / 'p.yaml', '--processes', processes)
+    assert res.returncode == 1, (res.stdout, res.stderr)
+    assert 'Traceback' not in res.stderr
+    last = res.stderr.strip().splitlines()[-1]
+    assert last.startswith('pf-slam run: error: node predictor'), last
+    assert "parameter 'odometry_source' must be 'odom' or 'encoders', got 'gps'" in last
+    assert not out.exists()
