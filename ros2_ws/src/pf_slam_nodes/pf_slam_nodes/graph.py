@@ -26,7 +26,7 @@ from typing import Any, Callable
 import numpy as np
 import yaml
 
-from .io.bag import BagError, bag_info, check_run_inputs, deserialize, read_bag, stamp_ns_of
+from .io.bag import BagError, BagReadError, bag_info, check_run_inputs, deserialize, read_bag, stamp_ns_of
 from .io.mapfile import render_snapshot, write_map
 from .io.trajectory import write_tum
 from .ros import cdr
@@ -310,16 +310,21 @@ def detect_inputs(bag: str, info: dict, inputs: dict[str, str] | None = None) ->
     source = "odom" if "odom" in inputs else "encoders"
     topic = inputs[source]
     scan_stamps, odom_stamps, scan_frame = [], set(), None
-    for t, msgtype, _, raw in read_bag(bag, topics=[scan_topic, topic]):
-        msg = deserialize(raw, msgtype)
-        ns = stamp_ns_of(msg)
-        if t == scan_topic:
-            scan_stamps.append(ns)
-            scan_frame = msg.header.frame_id
-        else:
-            odom_stamps.add(ns)
-        if len(scan_stamps) >= 200:
-            break
+    try:
+        for t, msgtype, _, raw in read_bag(bag, topics=[scan_topic, topic]):
+            msg = deserialize(raw, msgtype)
+            ns = stamp_ns_of(msg)
+            if t == scan_topic:
+                scan_stamps.append(ns)
+                scan_frame = msg.header.frame_id
+            else:
+                odom_stamps.add(ns)
+            if len(scan_stamps) >= 200:
+                break
+    except BagReadError:
+        if not scan_stamps:
+            raise  # damaged before the first scan: nothing to run
+        # damaged later: decide from the scans before it; the replay stops at the damage and says so
     exact = bool(scan_stamps) and sum(s in odom_stamps for s in scan_stamps) >= 0.9 * len(scan_stamps)
     predictor: dict[str, Any] = {"odometry_source": source, "odom_sync": "exact" if exact else "interpolate"}
     custom = info.get("custom_data", {})
@@ -368,10 +373,11 @@ def _scan_frame_transform(bag: str, topics: dict, scan_frame: str | None):
     """The bag's /tf_static transform whose child is the scan's frame (its mount), or None."""
     if "/tf_static" not in topics or not scan_frame:
         return None
-    for _, msgtype, _, raw in read_bag(bag, topics=["/tf_static"]):
-        for tr in deserialize(raw, msgtype).transforms:
-            if tr.child_frame_id == scan_frame:
-                return tr
+    with contextlib.suppress(BagReadError):  # damaged mid-bag: the transforms before it count
+        for _, msgtype, _, raw in read_bag(bag, topics=["/tf_static"]):
+            for tr in deserialize(raw, msgtype).transforms:
+                if tr.child_frame_id == scan_frame:
+                    return tr
     return None
 
 
@@ -462,6 +468,10 @@ class _Recorder:
     def _on_node_status(self, msg) -> None:
         status = json.loads(msg.data)
         self.node_status[status["node"]] = status
+
+    def bag_error(self) -> str | None:
+        """The damage that ended the replay early (bag_replay's pf_slam/status), or None."""
+        return self.node_status.get("bag_replay", {}).get("error")
 
     def faults(self) -> dict[str, int]:
         """The input faults the nodes counted (summary.json "faults")."""
@@ -771,7 +781,13 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
 
         def finished() -> bool:
             m = rec.map_msg
-            if len(rec.poses) >= scans_total:  # and the predictor's final fault counts are here
+            expected = scans_total
+            if rec.bag_error() is not None and rec.replay_counts is not None:
+                # damaged mid-bag: the replay ended there; finish the scans it published
+                expected = rec.replay_counts.get(inputs["scan"], 0)
+                if expected == 0:
+                    return True
+            if len(rec.poses) >= expected:  # and the predictor's final fault counts are here
                 return (m is not None and stamp_ns_of(m) == rec.stamps[-1]
                         and rec.node_status.get("predictor", {}).get("final", False))
             # paced replays (--rate N) may lose scans under load: once the bag is out and the
@@ -817,6 +833,8 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
             while not outcome.done():
                 ex.spin_until_future_complete(outcome, timeout_sec=1.0)
         stopped_by = outcome.result()
+        if stopped_by is None and rec.bag_error() is not None:
+            stopped_by = f"BAG: {rec.bag_error()}"
         wall = (slam_done["t"] if slam_done else time.monotonic()) - t_start
         rec.print_progress(final=True)
         if result is not None:
