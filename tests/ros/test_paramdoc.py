@@ -28,3 +28,16 @@ def test_every_parameter_has_a_description_and_unit_rules():
     assert paramdoc.unit_of("queue_depth", "pairs; the oldest (skipped)") == "–"
     with pytest.raises(ValueError, match="no description"):
         paramdoc.markdown_table({"x": {"nodes": ["mapper"], "default": 1, "description": ""}})
+
+
+def test_the_static_table_of_declared_parameters_matches_the_nodes(ros_domain):
+    """`pf-slam run` checks parameter files against nodes.declared without building nodes: the
+    table must name every parameter each node really declares, with the same default."""
+    from pf_slam_nodes.nodes.declared import declared, declared_by
+    real = paramdoc.declared_parameters(domain_id=ros_domain)
+    assert {n: sorted(r["nodes"]) for n, r in real.items()} == {n: sorted(v) for n, v in declared_by().items()}
+    for name, row in real.items():
+        if row["default"] is not paramdoc._UNSET:
+            value = row["default"]
+            value = list(value) if type(value).__name__ == "array" or isinstance(value, tuple) else value
+            assert value == declared(row["nodes"][0])[name], name

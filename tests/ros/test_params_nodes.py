@@ -60,3 +60,16 @@ def test_bad_parameter_names_the_parameter(ros_context):
         Predictor(context=ros_context, parameter_overrides=[Parameter("filter.num_particles", value=0)])
     with pytest.raises(ValueError, match="odometry_source"):
         Predictor(context=ros_context, parameter_overrides=[Parameter("odometry_source", value="gps")])
+
+
+def test_live_node_warns_about_undeclared_overrides(ros_context):
+    """Started by ros2 launch with a --params-file, ROS ignores names the node does not declare;
+    the node names those that no node of the graph declares (another node's are fine)."""
+    from pf_slam_nodes.nodes.common import warn_undeclared
+    node = Predictor(context=ros_context, parameter_overrides=[
+        Parameter("num_partcles", value=5), Parameter("grid.resolution_m", value=0.1),
+        Parameter("filter.seed", value=1)])
+    try:
+        assert warn_undeclared(node) == ["num_partcles"]
+    finally:
+        node.destroy_node()

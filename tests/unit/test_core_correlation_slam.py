@@ -197,6 +197,37 @@ def test_remap_and_numpy_paths_agree(monkeypatch):
     np.testing.assert_allclose(score_remap, score_np, rtol=0.05, atol=1.0)
 
 
+def test_window_search_any_particle_count_chunks_the_remap():
+    """cv2.remap takes fewer than SHRT_MAX (32767) rows: 4000 particles x 9 yaws = 36000 candidate
+    rows crashed it. Chunked over particles: 20 000 particles work, and every particle's result
+    is the one it gets alone or in a small set (bit for bit), as for the counts that fit one call."""
+    import pf_slam_nodes.core.correlation as corr
+    occ = world()
+    true_pose = np.array([6.1, 5.2, 0.4])
+    ang = beam_angles(-math.pi / 2, math.pi / 180, 181)
+    pts = scan_to_points(raycast(occ, true_pose, ang), ang, 0.1, 19.0)[::4]
+    cfg = CorrelationConfig()  # 9 yaws x 25 shifts
+    field = build_likelihood_field(occ, RES, cfg.sigma_m, cfg.occupied_threshold, (0.0, 0.0), cfg.max_distance_m)
+    assert corr._use_remap(field) and pts.shape[0] < 32000
+    n_yaw = corr._offsets(cfg.search_yaw_rad, cfg.step_yaw_rad).size
+    assert 4000 * n_yaw > 32767
+    rng = np.random.default_rng(5)
+    starts = true_pose + rng.normal(0, [0.1, 0.1, 0.05], (20000, 3))
+    best, score = corr.window_search(starts, pts, field, cfg)
+    assert best.shape == (20000, 3) and np.isfinite(score).all()
+    for i0 in (0, 3555, 19900):  # pieces of 100 particles: one remap call each, as before
+        b, s = corr.window_search(starts[i0:i0 + 100], pts, field, cfg)
+        np.testing.assert_array_equal(best[i0:i0 + 100], b)
+        np.testing.assert_array_equal(score[i0:i0 + 100], s)
+    # the search moves the particles towards the true pose
+    assert np.median(np.hypot(*(best[:, :2] - true_pose[:2]).T)) < np.median(np.hypot(*(starts[:, :2] - true_pose[:2]).T))
+    # more points than remap's columns: the numpy path (no crash)
+    many = np.repeat(pts, 33000 // pts.shape[0] + 1, axis=0)
+    b, s = corr.window_search(starts[:2], many, field, cfg)
+    np.testing.assert_allclose(s, corr.window_search(starts[:2], pts, field, cfg)[1] * many.shape[0] / pts.shape[0],
+                               rtol=0.02)
+
+
 def test_field_block_update_is_exact_across_tiles():
     """Changes scattered over many tiles (as a long-range scan makes them) update the field
     exactly like a rebuild; cells far from every change are not touched."""

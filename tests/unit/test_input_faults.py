@@ -15,7 +15,7 @@ from rosbags.rosbag2 import Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from pf_slam_nodes.io import skips
-from pf_slam_nodes.io.bag import (TYPESTORE, BagError, bag_info, check_run_inputs, laser_scan,
+from pf_slam_nodes.io.bag import (TYPESTORE, BagError, BagReadError, bag_info, check_run_inputs, laser_scan,
                                   odometry, open_writer, read_bag)
 from pf_slam_nodes.io.carmen import read_carmen
 from pf_slam_nodes.io.mines import read_mines
@@ -292,3 +292,111 @@ def test_corrupt_bytes_inside_a_bag_raise_bag_error(tmp_path, storage):
         for _ in read_bag(bag):
             n += 1
     assert n < 4000  # stopped at the damage
+
+
+# ------------------------------------------------------------------------ pf-slam run: bad parameters
+@pytest.mark.parametrize('args, yaml_text, needles', [
+    (['--particles', '0'], None, ["the command line (--particles): parameter 'filter.num_particles'",
+                                  'num_particles must be >= 1, got 0']),
+    ([], '/**:\n  ros__parameters:\n    num_partcles: 500\n',
+     ["section '/**': unknown parameter 'num_partcles'", "nearest known: 'filter.num_particles'"]),
+    ([], '/**:\n  ros__parameters:\n    filter: {num_particles: 0}\n',
+     ["p.yaml, section '/**': parameter 'filter.num_particles'", 'must be >= 1, got 0']),
+    ([], 'correlator:\n  ros__parameters:\n    correlation.search_x_m: fast\n',
+     ["p.yaml, section 'correlator': parameter 'correlation.search_x_m'"]),
+    ([], '/**:\n  ros__parameters:\n    filter: {num_particles: 5\n', ['p.yaml:4:1: cannot read parameter file: not valid YAML: ']),
+    (['--rate', 'fast'], None, ["the command line (--rate): parameter 'rate'"]),
+])
+def test_cli_run_bad_parameters_one_line_nothing_written(tmp_path, args, yaml_text, needles):
+    """Checked before anything is created: one line naming the flag or file+section and the
+    parameter; --out is not created, and a pre-existing --out keeps exactly what it had."""
+    bag = _run_bag(tmp_path / 'bag')
+    if yaml_text is not None:
+        (tmp_path / 'p.yaml').write_text(yaml_text)
+        args = args + ['--params', tmp_path / 'p.yaml']
+    out = tmp_path / 'new' / 'run'
+    assert_fatal(cli('run', bag, '--out', out, *args), 'run', *needles)
+    assert not (tmp_path / 'new').exists()
+    mine = tmp_path / 'mine'
+    mine.mkdir()
+    (mine / 'notes.txt').write_text('keep')
+    assert_fatal(cli('run', bag, '--out', mine, *args), 'run', *needles)
+    assert sorted(p.name for p in mine.iterdir()) == ['notes.txt']
+
+
+@pytest.mark.parametrize('processes', ['single', 'multi'])
+def test_cli_run_node_refusing_a_parameter_leaves_no_out(tmp_path, processes, ros_domain):
+    """A value only the node itself checks (odometry_source 'gps') fails when the node is built
+    (in this process, or in its own with --processes multi): the last line names the node and
+    the parameter, exit 1, and what the run had created is removed."""
+    bag = _run_bag(tmp_path / 'bag')
+    (tmp_path / 'p.yaml').write_text('predictor:\n  ros__parameters:\n    odometry_source: gps\n')
+    out = tmp_path / 'run'
+    res = cli('run', bag, '--out', out, '--params', tmp_path / 'p.yaml', '--processes', processes)
+    assert res.returncode == 1, (res.stdout, res.stderr)
+    assert 'Traceback' not in res.stderr
+    last = res.stderr.strip().splitlines()[-1]
+    assert last.startswith('pf-slam run: error: node predictor'), last
+    assert "parameter 'odometry_source' must be 'odom' or 'encoders', got 'gps'" in last
+    assert not out.exists()
+
+
+# ------------------------------------------------------------------------ pf-slam run: bag damaged mid-file
+def _damaged_mid_bag(path: Path, n: int = 1500) -> tuple[Path, int, int]:
+    """An MCAP bag of `n` scans + odometry (~3 MB: rosbags closes a chunk at 1 MiB, so several
+    chunks) with 5000 bytes overwritten in the middle chunk; returns it, the messages and the
+    scans readable before the damage (read from the damaged bag until the reader stops)."""
+    bag = _run_bag(path, 'mcap', n=n)
+    data = next(f for f in bag.iterdir() if f.suffix == '.mcap')
+    b = bytearray(data.read_bytes())
+    b[len(b) // 2:len(b) // 2 + 5000] = b'\xff' * 5000
+    data.write_bytes(bytes(b))
+    msgs = scans = 0
+    with pytest.raises(BagReadError):
+        for topic, *_ in read_bag(bag):
+            msgs += 1
+            scans += topic == '/scan'
+    return bag, msgs, scans
+
+
+def test_read_bag_damage_mid_file_yields_everything_before_it(tmp_path):
+    """Damage in one MCAP chunk: every message of the chunks before it comes out (the same bytes
+    as from an intact copy), then BagReadError with the position: message index and record time."""
+    intact = [m for m in read_bag(_run_bag(tmp_path / 'intact', 'mcap', n=1500))]
+    bag, msgs, scans = _damaged_mid_bag(tmp_path / 'mid')
+    assert 0.25 * len(intact) < msgs < 0.75 * len(intact)  # the middle chunk, not the start or the end
+    got = []
+    with pytest.raises(BagReadError) as e:
+        for m in read_bag(bag):
+            got.append(m)
+    assert got == intact[:msgs]
+    err = e.value
+    assert err.messages == msgs and err.last_stamp_ns == intact[msgs - 1][2]
+    assert str(err).startswith(f'{bag}: cannot read messages: damaged at message {msgs + 1} ({msgs} read, '
+                               f'the last at record time {intact[msgs - 1][2] / 1e9:.9f} s): ')
+    assert err.damage.startswith(f'damaged at message {msgs + 1} of {bag} (')
+
+
+@pytest.mark.parametrize('processes', ['single', 'multi'])
+def test_cli_run_bag_damaged_mid_file_keeps_what_came_before(tmp_path, processes, ros_domain):
+    """A bag damaged mid-file: the replay publishes what it read and reports the damage; the run
+    finishes those scans (not the 60 s idle stop), writes their outputs with "complete": false
+    and the position in "stopped_by", ends with one line naming the bag and the position, exit 1."""
+    import json
+    bag, msgs, scans = _damaged_mid_bag(tmp_path / 'mid')
+    out = tmp_path / 'run'
+    res = cli('run', bag, '--out', out, '--processes', processes)
+    assert res.returncode == 1, (res.stdout, res.stderr[-3000:])
+    assert 'Traceback' not in res.stderr and 'Exception in' not in res.stderr
+    last = res.stdout.strip().splitlines()[-1]
+    assert last.startswith(f'run incomplete: stopped by BAG: damaged at message {msgs + 1} of {bag} '
+                           f'({msgs} read, the last at record time '), last
+    s = json.loads((out / 'summary.json').read_text())
+    assert s['complete'] is False
+    assert s['stopped_by'].startswith(f'BAG: damaged at message {msgs + 1} of {bag} ')
+    assert s['scans_in_bag'] == 1500 and s['scans_published'] == s['scans_processed'] == scans
+    tum = [ln for ln in (out / 'trajectory.tum').read_text().splitlines() if ln and not ln.startswith('#')]
+    assert len(tum) == scans  # every scan before the damaged chunk
+    stamps = [float(ln.split()[0]) for ln in tum]
+    assert stamps == [1.0 + 0.1 * i for i in range(scans)] or np.allclose(stamps, 1.0 + 0.1 * np.arange(scans))
+    assert (out / 'map.pgm').is_file() and (out / 'map.yaml').is_file()

@@ -26,7 +26,7 @@ from typing import Any, Callable
 import numpy as np
 import yaml
 
-from .io.bag import BagError, bag_info, check_run_inputs, deserialize, read_bag, stamp_ns_of
+from .io.bag import BagError, BagReadError, bag_info, check_run_inputs, deserialize, read_bag, stamp_ns_of
 from .io.mapfile import render_snapshot, write_map
 from .io.trajectory import write_tum
 from .ros import cdr
@@ -72,8 +72,13 @@ def load_params(path: str | os.PathLike) -> dict[str, dict[str, Any]]:
     p = Path(path)
     try:
         doc = yaml.safe_load(p.read_text())
-    except (OSError, yaml.YAMLError) as e:
+    except OSError as e:
         raise RunError(f"{p}: cannot read parameter file: {e}") from None
+    except yaml.YAMLError as e:  # one line: where and what (PyYAML's own text spans lines)
+        mark = getattr(e, "problem_mark", None)
+        at = f":{mark.line + 1}:{mark.column + 1}" if mark is not None else ""
+        what = " ".join(x for x in (getattr(e, "context", None), getattr(e, "problem", None)) if x) or str(e)
+        raise RunError(f"{p}{at}: cannot read parameter file: not valid YAML: {' '.join(what.split())}") from None
     if not isinstance(doc, dict):
         raise RunError(f"{p}: not a ROS 2 parameter file (expected a mapping of node names)")
     out: dict[str, dict[str, Any]] = {}
@@ -83,8 +88,100 @@ def load_params(path: str | os.PathLike) -> dict[str, dict[str, Any]]:
         key = node if node == "/**" else str(node).lstrip("/")
         if key != "/**" and key not in NODE_NAMES + ("texture",):
             raise RunError(f"{p}: unknown node {node!r}; nodes: {', '.join(NODE_NAMES)}")
-        out.setdefault(key, {}).update(flatten(body["ros__parameters"] or {}))
+        params = body["ros__parameters"] or {}
+        if not isinstance(params, dict):
+            raise RunError(f"{p}: section {node!r}: 'ros__parameters' must be a mapping of names to values")
+        flat = flatten(params)
+        check_names(p, node, key, flat)
+        out.setdefault(key, {}).update(flat)
     return out
+
+
+def check_names(path: Path, section: str, key: str, flat: dict[str, Any]) -> None:
+    """RunError for the first name of a parameter file's section that no node would read:
+    in a node's section, one that node does not declare; in '/**', one no node declares
+    (`topics.*` are `pf-slam run`'s own). Names the file, the section, the name and the
+    nearest declared one. (ROS itself ignores undeclared overrides: a typo would silently
+    leave the default.)"""
+    from .nodes.declared import RUN_KEYS_PREFIXES, declared, declared_by, nearest
+    by = declared_by()
+    for name in flat:
+        if key == "/**":
+            run_keys = [f"{prefix}{r}" for prefix in RUN_KEYS_PREFIXES for r in INPUT_TYPES]
+            if name in by or name in run_keys:
+                continue
+            known = run_keys if name.startswith(RUN_KEYS_PREFIXES) else list(by) + run_keys
+            where = ("the inputs are " + ", ".join(INPUT_TYPES)) if name.startswith(RUN_KEYS_PREFIXES) \
+                else "no node declares it"
+        else:
+            if name in declared(key):
+                continue
+            known = list(declared(key))
+            where = (f"{key} does not declare it (declared by {', '.join(by[name])}: put it in that "
+                     "section or under '/**')") if name in by else f"{key} does not declare it"
+        near = nearest(name, known)
+        hint = f"; nearest known: '{near}'" if near else ""
+        raise RunError(f"{path}: section {section!r}: unknown parameter '{name}' ({where}){hint}")
+
+
+#: `pf-slam run` flags -> the parameter they set (named in errors)
+CLI_FLAGS = {"filter.num_particles": "--particles", "filter.seed": "--seed", "rate": "--rate"}
+
+
+def check_node_values(per_node: dict[str, dict[str, Any]], labelled: list[tuple[Callable[[str], str], dict]]) -> None:
+    """RunError (one line) for the first value a node would refuse at start-up (bad type, a
+    config out of range: what the nodes check when built), naming where it was set, before
+    anything is created. `labelled`: the layers (as node_params) with a function section ->
+    where that layer's values come from."""
+    from .nodes.bag_replay import parse_rate
+    from .nodes.declared import check_values
+    for node, params in per_node.items():
+        bad = check_values(node, params)
+        if bad is None and node == "bag_replay":
+            try:
+                parse_rate(str(params.get("rate", "max")))
+            except ValueError as e:
+                bad = ("rate", str(e))
+        if bad is None:
+            continue
+        name, what = bad
+        where = "defaults"
+        for label, layer in reversed(labelled):
+            sec = node if name in layer.get(node, {}) else ("/**" if name in layer.get("/**", {}) else None)
+            if sec is not None:
+                where = label(sec)
+                break
+        if where == "the command line" and name in CLI_FLAGS:
+            where = f"the command line ({CLI_FLAGS[name]})"
+        raise RunError(f"{where}: parameter '{name}' of {node}: {what}")
+
+
+class _OutDir:
+    """The run's output folder: created (with snapshots/) by the run, or a user's existing one.
+    `remove_new()` undoes what a run that failed before its graph started left there: the
+    topmost folder it created, or in an existing folder only the entries it added (never what
+    was there before)."""
+
+    def __init__(self, out: Path) -> None:
+        self.out = out
+        self.top = None
+        for p in [out, *out.parents]:
+            if p.exists():
+                break
+            self.top = p
+        self.before = set(out.iterdir()) if out.is_dir() else set()
+        (out / "snapshots").mkdir(parents=True, exist_ok=True)
+
+    def remove_new(self) -> None:
+        if self.top is not None:
+            shutil.rmtree(self.top, ignore_errors=True)
+            return
+        for p in set(self.out.iterdir()) - self.before:
+            if p.is_dir() and not p.is_symlink():
+                shutil.rmtree(p, ignore_errors=True)
+            else:
+                with contextlib.suppress(OSError):
+                    p.unlink()
 
 
 def node_params(layers: list[dict[str, dict[str, Any]]], node: str) -> dict[str, Any]:
@@ -228,16 +325,21 @@ def inspect_stamps(bag: str, inputs: dict[str, str], max_scans: int = 200) -> di
     odom_topic = inputs["odom" if "odom" in inputs else "encoders"]
     rows: dict[str, list[tuple[int, int]]] = {scan_topic: [], odom_topic: []}
     scan_frame = None
-    for t, msgtype, rec, raw in read_bag(bag, topics=[scan_topic, odom_topic]):
-        try:
-            msg = deserialize(raw, msgtype)
-        except Exception:  # an unreadable message: the predictor counts it at run time
-            continue
-        rows[t].append((stamp_ns_of(msg), rec))
-        if t == scan_topic:
-            scan_frame = msg.header.frame_id
-            if len(rows[t]) >= max_scans:
-                break
+    try:
+        for t, msgtype, rec, raw in read_bag(bag, topics=[scan_topic, odom_topic]):
+            try:
+                msg = deserialize(raw, msgtype)
+            except Exception:  # an unreadable message: the predictor counts it at run time
+                continue
+            rows[t].append((stamp_ns_of(msg), rec))
+            if t == scan_topic:
+                scan_frame = msg.header.frame_id
+                if len(rows[t]) >= max_scans:
+                    break
+    except BagReadError:
+        if not rows[scan_topic]:
+            raise  # damaged before the first scan: nothing to run
+        # damaged later: decide from the scans before it; the replay stops at the damage and says so
     arr = {t: np.array(r, dtype=np.int64).reshape(-1, 2) for t, r in rows.items()}
     restamp: dict[str, Any] = {}
     notes: dict[str, str] = {}
@@ -389,10 +491,11 @@ def _scan_frame_transform(bag: str, topics: dict, scan_frame: str | None):
     """The bag's /tf_static transform whose child is the scan's frame (its mount), or None."""
     if "/tf_static" not in topics or not scan_frame:
         return None
-    for _, msgtype, _, raw in read_bag(bag, topics=["/tf_static"]):
-        for tr in deserialize(raw, msgtype).transforms:
-            if tr.child_frame_id == scan_frame:
-                return tr
+    with contextlib.suppress(BagReadError):  # damaged mid-bag: the transforms before it count
+        for _, msgtype, _, raw in read_bag(bag, topics=["/tf_static"]):
+            for tr in deserialize(raw, msgtype).transforms:
+                if tr.child_frame_id == scan_frame:
+                    return tr
     return None
 
 
@@ -483,6 +586,10 @@ class _Recorder:
     def _on_node_status(self, msg) -> None:
         status = json.loads(msg.data)
         self.node_status[status["node"]] = status
+
+    def bag_error(self) -> str | None:
+        """The damage that ended the replay early (bag_replay's pf_slam/status), or None."""
+        return self.node_status.get("bag_replay", {}).get("error")
 
     def faults(self) -> dict[str, int]:
         """The input faults the nodes counted (summary.json "faults")."""
@@ -691,7 +798,10 @@ def _make_node(name: str, context, overrides: dict[str, Any], remaps: dict[str, 
     else:
         cls = {"bag_replay": BagReplay, "predictor": Predictor, "correlator": Correlator, "mapper": Mapper}[name]
     params = [Parameter(k, value=v) for k, v in overrides.items()]
-    return cls(context=context, parameter_overrides=params, cli_args=_remap_args(remaps))
+    try:
+        return cls(context=context, parameter_overrides=params, cli_args=_remap_args(remaps))
+    except ValueError as e:  # a parameter it refused: say which node
+        raise RunError(str(e) if str(e).startswith("node ") else f"node {name}: {e}") from None
 
 
 def _remap_args(remaps: dict[str, str] | None) -> list[str] | None:
@@ -737,6 +847,13 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     if overrides:
         layers.append(overrides)
     per_node = {n: node_params(layers, n) for n in node_names}
+    labels = [lambda sec: f"{bag} (implied by the bag)"]
+    if file_layer:
+        labels.append(lambda sec: f"{params_file}, section {sec!r}")
+    labels.append(lambda sec: "the command line")  # --rate (and what pf-slam run sets itself)
+    if overrides:
+        labels.append(lambda sec: "the command line")
+    check_node_values(per_node, list(zip(labels, layers)))
     # the replay says when it stopped for the poses (pf_slam/replay_stall): that, not the number
     # of scans waiting (odom_wait_scans, for live inputs), decides that odometry will not come
     per_node["predictor"].setdefault("odom_wait_scans", 0)
@@ -746,7 +863,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         # before the run: inspect_stamps)
         per_node["predictor"].setdefault("stamp_offset_s", 0.0)
     out = Path(out_dir)
-    (out / "snapshots").mkdir(parents=True, exist_ok=True)
+    out_dir_ = _OutDir(out)
     scans_total = info["topics"][inputs["scan"]][1]
     remaps = topic_remaps(inputs)
     if progress:
@@ -765,6 +882,8 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     nodes = []  # every node of this process, destroyed at the end: a node left alive keeps its
     ex = None   # DDS readers matched by later runs on the same domain (ghost subscribers)
     t_start = time.monotonic()
+    started = [False]  # the graph is up (its nodes built): from then on a failure keeps outputs
+    early: list[str] = []  # why the graph failed to start (--out is then removed)
     try:
         rec_node = rclpy.create_node("pf_slam_recorder", context=ctx)
         nodes.append(rec_node)
@@ -783,6 +902,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
                 ex.add_node(node)
                 if name == "texture":
                     texture_node = node
+            started[0] = True
         else:
             children = _spawn(per_node, domain_id, out, remaps)
         state = {"last_progress": time.monotonic(), "last_count": -1}
@@ -790,7 +910,13 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
 
         def finished() -> bool:
             m = rec.map_msg
-            if len(rec.poses) >= scans_total:  # and the predictor's final fault counts are here
+            expected = scans_total
+            if rec.bag_error() is not None and rec.replay_counts is not None:
+                # damaged mid-bag: the replay ended there; finish the scans it published
+                expected = rec.replay_counts.get(inputs["scan"], 0)
+                if expected == 0:
+                    return True
+            if len(rec.poses) >= expected:  # and the predictor's final fault counts are here
                 return (m is not None and stamp_ns_of(m) == rec.stamps[-1]
                         and rec.node_status.get("predictor", {}).get("final", False))
             # paced replays (--rate N) may lose scans under load: once the bag is out and the
@@ -809,8 +935,13 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
                 return
             if len(rec.poses) != state["last_count"]:
                 state["last_count"], state["last_progress"] = len(rec.poses), time.monotonic()
+            if rec.poses:
+                started[0] = True
             for name, c in children.items():
                 if c.poll() is not None:
+                    if not started[0]:  # e.g. a parameter it refused: nothing was processed
+                        early.append(f"node {name} {_exit_text(c.returncode)} before the first scan: "
+                                     f"{_last_line(out / 'logs' / f'{name}.log')}")
                     outcome.set_result(f"node {name} {_exit_text(c.returncode)}; log: {out / 'logs' / name}.log")
                     return
             if time.monotonic() - state["last_progress"] > idle_timeout_s:
@@ -831,6 +962,8 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
             while not outcome.done():
                 ex.spin_until_future_complete(outcome, timeout_sec=1.0)
         stopped_by = outcome.result()
+        if stopped_by is None and rec.bag_error() is not None:
+            stopped_by = f"BAG: {rec.bag_error()}"
         wall = (slam_done["t"] if slam_done else time.monotonic()) - t_start
         rec.print_progress(final=True)
         if result is not None:
@@ -840,6 +973,10 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         if stopped_by is None and texture_node is not None and texture_node.wait_idle(30.0):
             texture_out = texture_node.render()  # in the final /map geometry
         stage_split = _stage_split(nodes, wall, len(rec.poses)) if processes == "single" else None
+    except BaseException:
+        if not started[0]:
+            early.append("")
+        raise
     finally:
         _stop_children(children)
         if ex is not None:
@@ -850,6 +987,10 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
             node.destroy_node()
         if ctx.ok():
             rclpy.shutdown(context=ctx)
+        if early:  # failed before the graph started: leave no half-written --out
+            out_dir_.remove_new()
+    if early:
+        raise RunError(early[0])
 
     extra = _write_outputs(out, rec, texture, texture_out)
     covered_s = bag_duration_s  # a stopped run: the real-time factor of the part it processed
@@ -933,6 +1074,15 @@ def _catch_stop_signals(stop: list[str]):
     finally:
         for sig, handler in old.items():
             signal.signal(getattr(signal, sig), handler)
+
+
+def _last_line(path: Path) -> str:
+    """The last non-empty line of a node's log (its error), or a note that there is none."""
+    try:
+        lines = [ln.strip() for ln in path.read_text(errors="replace").splitlines() if ln.strip()]
+    except OSError:
+        lines = []
+    return lines[-1] if lines else "(its log is empty)"
 
 
 def _exit_text(code: int) -> str:

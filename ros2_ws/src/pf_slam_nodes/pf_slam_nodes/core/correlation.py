@@ -372,14 +372,17 @@ def _offsets(half: float, step: float) -> np.ndarray:
     return np.arange(-k, k + 1, dtype=np.float64) * step
 
 
-# cv2.remap turns float maps into 16-bit fixed-point cell coordinates: tables up to this size only
+# cv2.remap turns float maps into 16-bit fixed-point cell coordinates and asserts that the table
+# and its maps (output) have fewer than SHRT_MAX rows and columns: tables up to this size only,
+# and at most this many candidate poses (rows) or scan points (columns) per call
 _REMAP_MAX_CELLS = 32000
 
 
-def _use_remap(field: LikelihoodField) -> bool:
+def _use_remap(field: LikelihoodField, points: int = 0) -> bool:
     """Whether OpenCV's remap can do the window search's nearest-cell lookups (both padded
-    sides < 32000 cells): many points in one C call instead of numpy index arithmetic."""
-    return max(field._dist.shape) < _REMAP_MAX_CELLS
+    sides and the number of points < 32000): many points in one C call instead of numpy index
+    arithmetic. The candidate poses (the map's rows) are chunked to fit (:func:`window_search`)."""
+    return max(max(field._dist.shape), points) < _REMAP_MAX_CELLS
 
 
 def _points_in_table(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField, dtype=np.float64):
@@ -465,9 +468,12 @@ def window_search(
     n_yaw, n_shift, m = yaws.size, offs.size, pts.shape[0]
     best_poses = np.empty_like(poses)
     best_scores = np.empty(n)
-    remap = _use_remap(field)
-    # the index tensor of the numpy path is (n, J, S, M): bound it by chunks of particles
-    chunk = n if remap else max(1, _CHUNK_ELEMENTS // max(1, n_yaw * n_shift * m))
+    remap = _use_remap(field, m)
+    # remap: one row per candidate (particle x yaw) and remap takes < SHRT_MAX rows; the index
+    # tensor of the numpy path is (n, J, S, M): bound either by chunks of particles (each
+    # particle's scores do not depend on the chunking: the same results for any chunk size)
+    chunk = (max(1, (_REMAP_MAX_CELLS - 1) // n_yaw) if remap
+             else max(1, _CHUNK_ELEMENTS // max(1, n_yaw * n_shift * m)))
     table = field._loglik_flat
     for i0 in range(0, n, chunk):  # chunks of particles (not one particle at a time)
         p = poses[i0:i0 + chunk]

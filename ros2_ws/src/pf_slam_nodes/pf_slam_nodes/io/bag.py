@@ -42,6 +42,7 @@ from rosbags.typesys import Stores, get_typestore
 
 __all__ = [
     'BagError',
+    'BagReadError',
     'BagWriter',
     'STORAGES',
     'TYPESTORE',
@@ -87,6 +88,23 @@ _READ_ERRORS = (ReaderError, OSError, ValueError, KeyError, IndexError, TypeErro
 
 class BagError(Exception):
     """A bag cannot be written, opened or read; the message names the path and the cause."""
+
+
+class BagReadError(BagError):
+    """Damage found while reading a bag's messages, after `messages` good ones (the last at
+    record time `last_stamp_ns`, None if none): the messages before the damage were yielded.
+    `damage`: ``damaged at message 1235 of PATH (1234 read, the last at record time 61.2 s):
+    ReaderError: Chunk checksum mismatch.``"""
+
+    def __init__(self, path: Path, messages: int, last_stamp_ns: int | None, cause: BaseException) -> None:
+        self.path = path
+        self.messages = messages
+        self.last_stamp_ns = last_stamp_ns
+        after = '' if last_stamp_ns is None else f', the last at record time {last_stamp_ns / 1e9:.9f} s'
+        where = f'message {messages + 1}'
+        what = f'({messages} read{after}): {type(cause).__name__}: {cause}'
+        self.damage = f'damaged at {where} of {path} {what}'
+        super().__init__(f'{path}: cannot read messages: damaged at {where} {what}')
 
 
 # --------------------------------------------------------------------------------------------
@@ -221,11 +239,14 @@ def _iter_bag(p: Path, wanted: set[str] | None) -> Iterator[tuple[str, str, int,
         conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
         if wanted is not None and not conns:
             return
+        n, last = 0, None
         try:
             for conn, stamp_ns, raw in reader.messages(connections=conns):
-                yield conn.topic, conn.msgtype, int(stamp_ns), bytes(raw)
+                last = int(stamp_ns)
+                yield conn.topic, conn.msgtype, last, bytes(raw)
+                n += 1
         except _READ_ERRORS as exc:
-            raise BagError(f'{p}: cannot read messages: {type(exc).__name__}: {exc}') from exc
+            raise BagReadError(p, n, last, exc) from exc
     finally:
         reader.close()
 

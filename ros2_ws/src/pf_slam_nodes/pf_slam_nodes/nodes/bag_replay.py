@@ -7,6 +7,11 @@ reproducible; each time it stops there it says so on pf_slam/replay_stall (Repla
 done=false and the counts so far: a predictor that has all of them and still lacks a scan's
 odometry knows that it will not come before it poses that scan); `rate:=1` is real time, `rate:=N` N times real time. At the end of the bag the
 number of messages published per topic goes out on pf_slam/replay_status (latched).
+
+A bag damaged mid-file ends the replay where the damage is: what was read before it has been
+published, the damage (message index, record time, cause) goes out on pf_slam/status (latched
+JSON ``{"node": "bag_replay", "error": ...}``) and then replay_status, with the counts published,
+as at the end of a bag, so the graph finishes the scans it has.
 """
 from __future__ import annotations
 
@@ -21,7 +26,7 @@ from rclpy.publisher import Publisher
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
-from ..io.bag import bag_info, read_bag
+from ..io.bag import BagReadError, bag_info, read_bag
 from ..ros import cdr, qos, topics
 from .common import param, run_node
 
@@ -90,6 +95,8 @@ class BagReplay(Node):
         self.pub_status = self.create_publisher(ReplayStatus, topics.REPLAY_STATUS, qos.latched())
         self.pub_stall = self.create_publisher(ReplayStatus, topics.REPLAY_STALL, qos.pipeline())
         self.stall_sent_at = -1  # scans_published when the last stall went out
+        self.pub_node_status = self.create_publisher(String, topics.STATUS, qos.latched())
+        self.error: str | None = None  # the damage that ended the replay early
         self.create_subscription(PoseStamped, topics.POSE, self._on_progress, qos.pipeline(), raw=True)
         self.create_subscription(String, topics.READY, self._on_ready, qos.latched(depth=10))
         self.messages = read_bag(self.bag)
@@ -132,7 +139,11 @@ class BagReplay(Node):
             self.t0_wall = time.monotonic()
         for _ in range(budget):
             if self.pending is None:
-                self.pending = next(self.messages, None)
+                try:
+                    self.pending = next(self.messages, None)
+                except BagReadError as e:  # damaged mid-file: publish the end of what was read
+                    self._damaged(e)
+                    self.pending = None
                 if self.pending is None:
                     self._finish()
                     return
@@ -163,13 +174,21 @@ class BagReplay(Node):
                 self.last_clock_ns = stamp_ns
             self.pending = None
 
+    def _damaged(self, e: BagReadError) -> None:
+        import json
+        self.error = e.damage
+        self.messages = iter(())
+        self.get_logger().error(f"{e.damage}; the replay ends here ({self.scans_published} scans published)")
+        self.pub_node_status.publish(String(data=json.dumps(
+            {"node": "bag_replay", "error": e.damage, "messages_read": e.messages,
+             "last_stamp_ns": e.last_stamp_ns})))
+
     def _finish(self) -> None:
         self.done = True
         self.timer.cancel()
         self.pub_status.publish(self._counts(done=True))
         self.get_logger().info(f"end of bag: {sum(self.published.values())} messages, "
                                f"{self.scans_published} scans published")
-
 
     def _restamped(self, raw: bytes, record_ns: int, fix) -> bytes:
         """The header stamp replaced by the record time ("record") or shifted by `fix` ns."""

@@ -291,6 +291,22 @@ def die_with_parent() -> None:
         sys.exit(1)
 
 
+def warn_undeclared(node: Node) -> list[str]:
+    """Warn about overrides (a --params-file, e.g. from ros2 launch) that no node of the graph
+    declares: ROS ignores them, so a typo would silently keep the default. Names another node
+    declares are not warned about ('/**' values reach every node). Returns the names."""
+    from .declared import RUN_KEYS_PREFIXES, declared_by, nearest
+    by = declared_by()
+    names = sorted(k for k in getattr(node, "_parameter_overrides", {})
+                   if k not in by and not node.has_parameter(k)
+                   and not k.startswith(("qos_overrides.",) + RUN_KEYS_PREFIXES))
+    for k in names:
+        near = nearest(k, by)
+        node.get_logger().warning(f"parameter '{k}' is set but no node declares it: ignored"
+                                  + (f" (nearest known: '{near}')" if near else ""))
+    return names
+
+
 def run_node(factory: Callable[..., Node], args: list[str] | None = None) -> int:
     """`main()` of a node console script: init, spin until Ctrl-C / SIGTERM / shutdown, clean up."""
     die_with_parent()
@@ -298,6 +314,7 @@ def run_node(factory: Callable[..., Node], args: list[str] | None = None) -> int
     node = None
     try:
         node = factory()
+        warn_undeclared(node)
         ex = SingleThreadedExecutor()
         ex.add_node(node)
         ex.spin()
