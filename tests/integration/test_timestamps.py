@@ -65,3 +65,28 @@ def test_impossible_stamps_are_detected_and_replayed_right(case, tmp_path, ros_d
         t, _ = read_trajectory(tmp_path / "out" / "trajectory.tum")
         t_gt, _ = read_trajectory(SAMPLE.parent / "ground_truth.tum")
         np.testing.assert_allclose(t, t_gt[:N], atol=1e-6)
+
+
+def test_live_offset_is_reported(tmp_path, ros_domain, monkeypatch, capfd):
+    """Without a bag to inspect (as live, paced at --rate 10): odometry stamped 3 s ahead of the
+    scans is reported once with the numbers and counted; the clean bag at the same rate is not."""
+    real = graph.inspect_stamps
+
+    def as_if_live(bag, inputs, max_scans=200):  # the bag inspection finds nothing to fix
+        out = real(bag, inputs, max_scans)
+        out["restamp"], out["notes"] = {}, {}
+        return out
+
+    monkeypatch.setattr(graph, "inspect_stamps", as_if_live)
+    n = 100
+    _edit_bag(SAMPLE, tmp_path / "bag", n, CASES["odom_offset"](None))
+    res = graph.run(str(tmp_path / "bag"), tmp_path / "out", rate="10", progress=False, domain_id=ros_domain,
+                    snapshot_every=0, idle_timeout_s=30.0, overrides={"predictor": {"odom_sync": "interpolate"}})
+    err = capfd.readouterr().err
+    s = res.summary
+    assert s["scans_processed"] == n, s.get("stopped_by")
+    assert "odometry stamps 3.0" in err and "ahead of the scan stamps" in err, err
+    assert s["faults"]["odom_stamp_offset"] >= n - 5, s["faults"]  # from the 3rd scan in a row on
+    clean = graph.run(str(SAMPLE), tmp_path / "clean", rate="10", progress=False, domain_id=ros_domain,
+                      snapshot_every=0)
+    assert clean.summary["faults"]["odom_stamp_offset"] == 0, clean.summary["faults"]
