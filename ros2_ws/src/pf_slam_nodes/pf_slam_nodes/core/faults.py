@@ -18,7 +18,7 @@ from .scan import scan_limits_ok
 #: odom_missing, fog_out_of_order; WheelOdometryIntegrator counts encoder_jump)
 SCAN_BAD_RANGES = "scan_bad_ranges"          # a scan with NaN or negative ranges: those beams ignored
 SCAN_COUNT_MISMATCH = "scan_count_mismatch"  # range count != what the angles say: not corrected with
-SCAN_BAD_LIMITS = "scan_bad_limits"          # range_min/range_max unusable (max <= 0, min > max, NaN/inf, min < 0)
+SCAN_BAD_LIMITS = "scan_bad_limits"          # range_min/range_max unusable (max <= 0, min > max, NaN, min < 0): not used
 TIME_BACKWARDS = "time_backwards"            # a scan stamped before the previous one
 TIME_GAP = "time_gap"                        # a scan more than time_gap_s after the previous one
 SCAN_UNREADABLE = "scan_unreadable"          # bytes that are not a LaserScan: posed from odometry
@@ -54,7 +54,8 @@ class ScanChecks:
 
         Values outside ``[range_min, range_max]`` are no returns (REP 117: the stages ignore
         them) and not counted. Limits that cannot gate anything (``range_max <= 0``,
-        ``range_min > range_max``, ``range_min < 0``, NaN or inf: :func:`scan_limits_ok`) leave
+        ``range_min > range_max``, ``range_min < 0`` or not finite, ``range_max`` NaN:
+        :func:`~pf_slam_nodes.core.scan.scan_limits_ok`; ``range_max = +inf`` is no limit) leave
         no valid range: a ``scan_bad_limits`` fault, and the scan is posed from odometry, neither
         corrected nor mapped with (as a beam count mismatch).
         """
@@ -68,7 +69,7 @@ class ScanChecks:
         limits_ok = scan_limits_ok(range_min, range_max)
         if not limits_ok:
             faults.append((SCAN_BAD_LIMITS, f"range_min {range_min:g}, range_max {range_max:g}: no range can be "
-                           "valid (needs finite 0 <= range_min <= range_max, range_max > 0); not corrected "
+                           "valid (needs 0 <= range_min <= range_max, range_max > 0, not NaN); not corrected "
                            "or mapped with, posed from odometry"))
         count_ok = True
         if angle_increment != 0 and math.isfinite(angle_min + angle_max + angle_increment):

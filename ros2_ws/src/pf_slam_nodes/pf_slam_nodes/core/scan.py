@@ -130,11 +130,12 @@ def transform_points_batch(points: np.ndarray, poses: np.ndarray) -> np.ndarray:
 
 
 def scan_limits_ok(range_min: float, range_max: float) -> bool:
-    """Whether a scan's ``range_min`` / ``range_max`` can gate its ranges: both finite,
-    ``0 <= range_min <= range_max`` and ``range_max > 0``. A scan that fails this has no valid
-    range (REP 117: values outside the limits are no returns), so nothing of it is used."""
-    return (math.isfinite(range_min) and math.isfinite(range_max) and 0.0 <= range_min <= range_max
-            and range_max > 0.0)
+    """Whether a scan's ``range_min`` / ``range_max`` can gate its ranges: ``range_min`` finite,
+    ``0 <= range_min <= range_max``, ``range_max > 0`` and not NaN (``+inf``: no upper limit,
+    the core's default). A scan that fails this has no valid range (REP 117: values outside the
+    limits are no returns), so nothing of it is used."""
+    return (math.isfinite(range_min) and 0.0 <= range_min <= range_max and range_max > 0.0
+            and not math.isnan(range_max))
 
 
 def gate_ranges(ranges: np.ndarray, range_min: float, range_max: float) -> np.ndarray:
