@@ -376,7 +376,7 @@ def _tf_static_tree(bag: str, topics: dict) -> tuple[dict[str, tuple[str, np.nda
             except ValueError as e:
                 warnings.append(f"/tf_static: {tr.header.frame_id} -> {tr.child_frame_id} ignored: {e}")
                 continue
-            tree[tr.child_frame_id] = (tr.header.frame_id, rot, t)
+            tree[tr.child_frame_id.lstrip("/")] = (tr.header.frame_id.lstrip("/"), rot, t)  # tf2 drops a leading /
     return tree, warnings
 
 
@@ -387,7 +387,7 @@ def _odom_child(bag: str, topics: dict, odom_frame: str) -> str | None:
     for k, (_, msgtype, _, raw) in enumerate(read_bag(bag, topics=["/tf"])):
         for tr in deserialize(raw, msgtype).transforms:
             if tr.header.frame_id.lstrip("/") == odom_frame and tr.child_frame_id:
-                return tr.child_frame_id
+                return tr.child_frame_id.lstrip("/")
         if k >= 200:
             break
     return None
