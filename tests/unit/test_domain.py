@@ -87,21 +87,24 @@ def test_explicit_domains_and_bad_values(monkeypatch):
         domain.explicit_domain(233)
 
 
-def test_isolated_settings_hold_inside_the_block_only(monkeypatch):
+def test_isolated_settings_and_the_environment(monkeypatch):
+    """The process environment is left alone (init_context applies the settings, tests/ros); the
+    node processes of an isolated run get LOCALHOST and no link to other graphs."""
     monkeypatch.delenv("ROS_DOMAIN_ID", raising=False)
     monkeypatch.setenv("ROS_STATIC_PEERS", "192.168.0.7")
     monkeypatch.setenv("ROS_DISCOVERY_SERVER", "10.0.0.1:11811")
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "SUBNET")
     with domain.run_domain(single_participant=True) as dom:
         assert dom.isolated and dom.id in domain.POOL and dom.discovery == "OFF" and dom.lock_fd is not None
-        assert os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "OFF"
-        assert "ROS_STATIC_PEERS" not in os.environ and "ROS_DISCOVERY_SERVER" not in os.environ
+        assert dom.environ_overrides() == {"ROS_AUTOMATIC_DISCOVERY_RANGE": "OFF", "ROS_STATIC_PEERS": None,
+                                           "ROS_LOCALHOST_ONLY": None, "ROS_DISCOVERY_SERVER": None}
         with pytest.raises(BlockingIOError):  # held
             fd = os.open(domain.lock_dir() / f"{dom.id}.lock", os.O_RDONLY)
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             finally:
                 os.close(fd)
+        assert domain.holder(dom.id) == os.getpid()
         assert dom.summary() == {"id": dom.id, "isolated": True, "discovery": "OFF", "chosen_by": "pf-slam"}
         assert "isolated" in dom.describe() and "--domain N" in dom.describe()
     assert os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "SUBNET"
@@ -119,6 +122,30 @@ def test_an_explicit_domain_keeps_the_environment(monkeypatch):
     with domain.run_domain() as dom:
         assert (dom.id, dom.isolated, dom.chosen_by, dom.lock_fd) == (17, False, "ROS_DOMAIN_ID", None)
         assert dom.discovery == "SUBNET (ROS default)" and "open" in dom.describe()
+        assert dom.environ_overrides() == {}
         assert os.environ["ROS_STATIC_PEERS"] == "192.168.0.7"
         env = dom.child_env()
         assert env["ROS_STATIC_PEERS"] == "192.168.0.7" and env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+
+
+def test_an_explicit_domain_held_by_another_run_is_warned_about(monkeypatch):
+    """--domain N on a domain an isolated run (here: another process) holds: the run says so and
+    summary.json records it; the holder's own children (a test's runs) are not warned."""
+    a = FREE[1]
+    code = ("import sys, time; from pf_slam_nodes.ros import domain\n"
+            f"with domain.claim_domain([{a}]) as (d, _):\n    print(d, flush=True); time.sleep(30)\n")
+    other = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert other.stdout.readline().strip() == str(a)
+        assert domain.holder(a) == other.pid
+        monkeypatch.delenv("ROS_DOMAIN_ID", raising=False)
+        with domain.run_domain(a) as dom:
+            assert dom.warning and f"pid {other.pid}" in dom.warning and "choose another --domain" in dom.warning
+            assert dom.summary()["warning"] == dom.warning and "warning:" in dom.describe()
+    finally:
+        other.kill()
+        other.wait()
+    assert domain.holder(a) is None
+    with domain.claim_domain([a]):  # held by this process: runs it starts are not warned
+        with domain.run_domain(a) as dom:
+            assert dom.warning is None and "warning" not in dom.summary()

@@ -30,7 +30,7 @@ from .io.bag import BagError, bag_info, check_run_inputs, deserialize, read_bag,
 from .io.mapfile import render_snapshot, write_map
 from .io.trajectory import write_tum
 from .ros import cdr
-from .ros.domain import RosDomain, run_domain
+from .ros.domain import RosDomain, init_context, run_domain
 
 NODE_NAMES = ("bag_replay", "predictor", "correlator", "mapper")
 TEXTURE_INPUT = "/stereo/left/image_raw"  # a bag with it gets the texture node
@@ -634,7 +634,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     if progress:
         print(dom.describe(), file=sys.stderr)
 
-    ctx = rclpy.Context()
+    ctx = None
     children: dict[str, subprocess.Popen] = {}
     stop_signal: list[str] = []  # set by SIGINT / SIGTERM while the graph runs
     result: ResultRecorder | None = None
@@ -642,8 +642,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     ex = None   # DDS readers matched by later runs on the same domain (ghost subscribers)
     t_start = time.monotonic()
     try:
-        rclpy.init(context=ctx, domain_id=dom.id)
-        rec_node = rclpy.create_node("pf_slam_recorder", context=ctx)
+        ctx, rec_node = init_context(dom, "pf_slam_recorder")
         nodes.append(rec_node)
         ex = make_executor(executor, ctx)
         ex.add_node(rec_node)
@@ -725,7 +724,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
             result.close()  # a failed run's partial recording stays readable
         for node in nodes:
             node.destroy_node()
-        if ctx.ok():
+        if ctx is not None and ctx.ok():
             rclpy.shutdown(context=ctx)
         domain_scope.close()  # the domain's lock (node processes hold it until they are gone)
 

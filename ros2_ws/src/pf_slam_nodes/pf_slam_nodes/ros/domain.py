@@ -20,6 +20,7 @@ import contextlib
 import fcntl
 import os
 import re
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -110,6 +111,9 @@ def claim_domain(pool: range | list[int] = POOL, probe: bool = True) -> Iterator
         if probe and domain_in_use(domain):  # came up between the first look and the lock
             os.close(fd)
             continue
+        with contextlib.suppress(OSError):  # who holds it, for an explicit run that lands on it
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
         try:
             yield domain, fd
         finally:
@@ -117,6 +121,36 @@ def claim_domain(pool: range | list[int] = POOL, probe: bool = True) -> Iterator
         return
     raise DomainError(f"no free ROS domain in {pool[0]}..{pool[-1]} (all held by other pf-slam runs or "
                       f"used by ROS 2 nodes on this host); choose one with --domain N")
+
+
+def holder(domain: int) -> int | None:
+    """The pid of the run or test holding `domain` (-1: held, pid unknown), or None when free."""
+    path = lock_dir() / f"{domain}.lock"
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        text = os.pread(fd, 32, 0).decode(errors="replace").strip()
+        return int(text) if text.isdigit() else -1
+    finally:
+        os.close(fd)  # releases the shared lock, if it was taken
+    return None
+
+
+def _ancestors() -> set[int]:
+    """This process and its parents (a test holding a domain starts the runs on it)."""
+    pids, pid = set(), os.getpid()
+    while pid > 1 and pid not in pids:
+        pids.add(pid)
+        try:
+            stat = Path(f"/proc/{pid}/stat").read_text()
+            pid = int(stat.rsplit(")", 1)[1].split()[1])
+        except (OSError, ValueError, IndexError):
+            break
+    return pids
 
 
 @dataclass(frozen=True)
@@ -128,17 +162,28 @@ class RosDomain:
     discovery: str
     chosen_by: str
     lock_fd: int | None = None
+    #: an explicit domain that an isolated pf-slam run or a test holds: the two will mix
+    warning: str | None = None
 
     def summary(self) -> dict:
         """summary.json "ros_domain"."""
-        return {"id": self.id, "isolated": self.isolated, "discovery": self.discovery, "chosen_by": self.chosen_by}
+        out = {"id": self.id, "isolated": self.isolated, "discovery": self.discovery, "chosen_by": self.chosen_by}
+        return out if self.warning is None else dict(out, warning=self.warning)
 
     def describe(self) -> str:
         if self.isolated:
             return (f"[pf-slam] ROS domain {self.id} (isolated: free, held by this run; discovery "
                     f"{self.discovery}; to watch the run live in rviz2 or Foxglove, give --domain N or set ROS_DOMAIN_ID)")
-        return (f"[pf-slam] ROS domain {self.id} (open, from {self.chosen_by}; discovery {self.discovery}: "
+        line = (f"[pf-slam] ROS domain {self.id} (open, from {self.chosen_by}; discovery {self.discovery}: "
                 f"viewers can watch, and any other ROS 2 node on this domain reaches the run)")
+        return line if self.warning is None else f"{line}\n[pf-slam] warning: {self.warning}"
+
+    def environ_overrides(self) -> dict[str, str | None]:
+        """What this process's environment must say while the run's Context is created (None:
+        unset); nothing for an explicit domain (the user's settings apply)."""
+        if not self.isolated:
+            return {}
+        return {"ROS_AUTOMATIC_DISCOVERY_RANGE": self.discovery, **{k: None for k in FOREIGN_LINKS}}
 
     def child_env(self, base: dict[str, str] | None = None) -> dict[str, str]:
         """The environment of a node process of this run."""
@@ -174,20 +219,45 @@ def explicit_domain(domain_id: int | None = None) -> tuple[int, str] | None:
 
 @contextlib.contextmanager
 def run_domain(domain_id: int | None = None, single_participant: bool = True) -> Iterator[RosDomain]:
-    """The domain for a run (see the module doc). `single_participant`: every node of the run is
-    in this process's one Context (discovery OFF); else node processes must discover each other
-    (LOCALHOST). While the block runs, an isolated run's discovery settings are in os.environ
-    (rclpy takes them from there when the Context and its participant are created); restored
-    afterwards."""
+    """The domain for a run (see the module doc), held until the block exits. `single_participant`:
+    every node of the run is in this process's one Context (discovery OFF); else node processes
+    must discover each other (LOCALHOST). Create the run's Context with init_context()."""
     chosen = explicit_domain(domain_id)
     if chosen is not None:
         disc = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE") or "SUBNET (ROS default)"
-        yield RosDomain(chosen[0], False, disc, chosen[1])
+        pid = holder(chosen[0])
+        warning = None
+        if pid is not None and pid not in _ancestors():
+            warning = (f"ROS domain {chosen[0]} is held by another pf-slam run or test "
+                       f"({'pid ' + str(pid) if pid > 0 else 'pid unknown'}): both will receive each "
+                       "other's topics; choose another --domain")
+        yield RosDomain(chosen[0], False, disc, chosen[1], warning=warning)
         return
     discovery = "OFF" if single_participant else "LOCALHOST"
-    with claim_domain() as (domain, fd), _environ(ROS_AUTOMATIC_DISCOVERY_RANGE=discovery,
-                                                  **{k: None for k in FOREIGN_LINKS}):
+    with claim_domain() as (domain, fd):
         yield RosDomain(domain, True, discovery, "pf-slam", fd)
+
+
+#: one Context at a time has the environment set for it (rcl reads the discovery settings from
+#: the environment at init, Fast DDS ROS_DISCOVERY_SERVER when the participant is created)
+_ENV_LOCK = threading.Lock()
+
+
+def init_context(dom: RosDomain, first_node: str):
+    """A new rclpy Context on `dom` and its first node (which creates the DDS participant). An
+    isolated domain's discovery settings are in os.environ only while the two are made, under a
+    lock, then restored: other code and concurrent runs in this process keep their environment.
+    Returns (context, node)."""
+    import rclpy
+    ctx = rclpy.Context()
+    with _ENV_LOCK, _environ(**dom.environ_overrides()):
+        rclpy.init(context=ctx, domain_id=dom.id)
+        try:
+            node = rclpy.create_node(first_node, context=ctx)
+        except BaseException:
+            rclpy.shutdown(context=ctx)
+            raise
+    return ctx, node
 
 
 @contextlib.contextmanager
@@ -210,16 +280,17 @@ def _environ(**values: str | None) -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def ros_context(domain_id: int | None = None):
+def ros_context(domain_id: int | None = None, name: str = "pf_slam_tool"):
     """An rclpy Context for a tool whose nodes all live in this process (parameter reference,
-    benchmarks): on run_domain(domain_id) — isolated unless a domain is given. Yields
-    (context, RosDomain); shut down afterwards."""
+    benchmarks): on run_domain(domain_id) — isolated unless a domain is given. A node `name`
+    lives as long as the block, so the participant made with the isolated settings does too.
+    Yields (context, RosDomain); shut down afterwards."""
     import rclpy
     with run_domain(domain_id, single_participant=True) as dom:
-        ctx = rclpy.Context()
-        rclpy.init(context=ctx, domain_id=dom.id)
+        ctx, keeper = init_context(dom, name)
         try:
             yield ctx, dom
         finally:
+            keeper.destroy_node()
             if ctx.ok():
                 rclpy.shutdown(context=ctx)
