@@ -31,6 +31,7 @@ from .io.bag import BagError, BagReadError, bag_info, check_run_inputs, deserial
 from .io.mapfile import render_snapshot, write_map
 from .io.trajectory import write_tum
 from .ros import cdr
+from .ros.domain import RosDomain, init_context, run_domain
 
 NODE_NAMES = ("bag_replay", "predictor", "correlator", "mapper")
 TEXTURE_INPUT = "/stereo/left/image_raw"  # a bag with it gets the texture node
@@ -880,7 +881,9 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     `record`: also write result.mcap (ResultRecorder), with a map every `record_map_every_s`
     of bag time (default: bag duration / 20). `input_topics`: the bag's topic per input
     ({'scan': '/front/scan', 'odom': ...}; also `topics.*` in the parameter file), see
-    select_inputs()."""
+    select_inputs(). `domain_id`: run on that ROS domain with the normal discovery (as does a set
+    ROS_DOMAIN_ID), so viewers can watch; default: isolated (ros/domain.py: a free domain held
+    by the run, discovery OFF in one process, LOCALHOST for one process per node)."""
     import rclpy
 
     if processes not in ("single", "multi"):
@@ -915,8 +918,16 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     if overrides:
         labels.append(lambda sec: "the command line")
     check_node_values(per_node, list(zip(labels, layers)))
+    # isolated on a free domain of its own unless `domain_id` / ROS_DOMAIN_ID names one
+    # (ros/domain.py); chosen before --out is created: a bad ROS_DOMAIN_ID writes nothing
+    domain_scope = contextlib.ExitStack()
+    dom = domain_scope.enter_context(run_domain(domain_id, single_participant=processes == "single"))
     out = Path(out_dir)
-    out_dir_ = _OutDir(out)
+    try:
+        out_dir_ = _OutDir(out)
+    except BaseException:
+        domain_scope.close()
+        raise
     scans_total = info["topics"][inputs["scan"]][1]
     remaps = topic_remaps(inputs)
     if progress:
@@ -924,11 +935,10 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     for note in mount_notes:
         print(f"[pf-slam] warning: {note}", file=sys.stderr)
     bag_duration_s = info["duration_ns"] / 1e9
-    if domain_id is None:
-        domain_id = int(os.environ.get("ROS_DOMAIN_ID", "0"))
+    if progress:
+        print(dom.describe(), file=sys.stderr)
 
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain_id)
+    ctx = None
     children: dict[str, subprocess.Popen] = {}
     stop_signal: list[str] = []  # set by SIGINT / SIGTERM while the graph runs
     result: ResultRecorder | None = None
@@ -938,7 +948,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     started = [False]  # the graph is up (its nodes built): from then on a failure keeps outputs
     early: list[str] = []  # why the graph failed to start (--out is then removed)
     try:
-        rec_node = rclpy.create_node("pf_slam_recorder", context=ctx)
+        ctx, rec_node = init_context(dom, "pf_slam_recorder")
         nodes.append(rec_node)
         ex = make_executor(executor, ctx)
         ex.add_node(rec_node)
@@ -957,7 +967,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
                     texture_node = node
             started[0] = True
         else:
-            children = _spawn(per_node, domain_id, out, remaps)
+            children = _spawn(per_node, dom, out, remaps)
         state = {"last_progress": time.monotonic(), "last_count": -1}
         slam_done: dict[str, float] = {}  # "t": when the SLAM finished (before the texture's tail)
 
@@ -1038,8 +1048,9 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
             result.close()  # a failed run's partial recording stays readable
         for node in nodes:
             node.destroy_node()
-        if ctx.ok():
+        if ctx is not None and ctx.ok():
             rclpy.shutdown(context=ctx)
+        domain_scope.close()  # the domain's lock (node processes hold it until they are gone)
         if early:  # failed before the graph started: leave no half-written --out
             out_dir_.remove_new()
     if early:
@@ -1079,6 +1090,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         summary["stage_ms_per_scan"] = stage_split
     summary["inputs"] = inputs
     summary["lidar_mount"] = {"used": mount_text, "warnings": mount_notes}
+    summary["ros_domain"] = dom.summary()
     if result is not None:
         summary["result_mcap"] = {"file": result.path.name, "messages": dict(result.counts)}
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
@@ -1221,16 +1233,18 @@ def _default_particles() -> int:
     return FilterConfig().num_particles
 
 
-def _spawn(per_node: dict[str, dict[str, Any]], domain_id: int, out: Path,
+def _spawn(per_node: dict[str, dict[str, Any]], dom: RosDomain, out: Path,
            remaps: dict[str, str] | None = None) -> dict[str, subprocess.Popen]:
     """Start one process per node, each with its own parameter file, in their own session: a
     Ctrl-C in the terminal reaches only this process, which stops them in order. They also
-    die with it (PF_SLAM_PARENT_PID, see nodes.common.run_node), so none is left orphaned."""
+    die with it (PF_SLAM_PARENT_PID, see nodes.common.run_node), so none is left orphaned.
+    They run on the run's domain `dom` (RosDomain.child_env) and inherit its lock, so an
+    isolated domain stays held until the last of them is gone."""
     logs = out / "logs"
     logs.mkdir(parents=True, exist_ok=True)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    env = dom.child_env()
     env["PF_SLAM_PARENT_PID"] = str(os.getpid())
+    keep = () if dom.lock_fd is None else (dom.lock_fd,)
     procs = {}
     for name in per_node:  # parameter files next to the logs: what each process ran with
         pfile = logs / f"{name}.params.yaml"
@@ -1239,7 +1253,7 @@ def _spawn(per_node: dict[str, dict[str, Any]], domain_id: int, out: Path,
             procs[name] = subprocess.Popen(
                 [sys.executable, "-m", f"pf_slam_nodes.nodes.{name}", "--ros-args", "--params-file", str(pfile)]
                 + (_remap_args(remaps) or [])[1:],
-                env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+                env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True, pass_fds=keep)
     return procs
 
 
@@ -1247,7 +1261,7 @@ def run_cli(args: Any, log: Callable[[str], None] = print) -> int:
     res = run(args.bag, args.out, params_file=args.params, rate=args.rate, processes=args.processes,
               overrides=_cli_overrides(args), snapshot_every=args.snapshot_every, executor=args.executor,
               texture=not getattr(args, "no_texture", False), record=not getattr(args, "no_record", False),
-              record_map_every_s=getattr(args, "record_map_every", None),
+              record_map_every_s=getattr(args, "record_map_every", None), domain_id=getattr(args, "domain", None),
               input_topics={role: getattr(args, f"{role}_topic", None) for role in INPUT_TYPES})
     s = res.summary
     dropped = "?" if s["scans_dropped"] is None else s["scans_dropped"]
