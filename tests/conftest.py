@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import os
 import time
 from pathlib import Path
@@ -23,22 +22,14 @@ def data_dir() -> Path:
 
 @contextlib.contextmanager
 def claim_domain() -> Iterator[int]:
-    """A ROS_DOMAIN_ID no other test (in this or a parallel pytest run) holds right now.
-
-    Domains 1..100 are claimed with an exclusive file lock held while the context is open;
-    ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST are set for child processes.
+    """A ROS_DOMAIN_ID no other test or `pf-slam run` (in this or a parallel process) holds and
+    no ROS 2 node of this host uses right now: the product's own claim (pf_slam_nodes.ros.domain,
+    domains 1..100, an exclusive file lock held while the context is open). ROS_DOMAIN_ID and
+    ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST are set for child processes.
     """
-    lock_dir = Path(os.environ.get("TMPDIR", "/tmp")) / "pf_slam_domains"
-    lock_dir.mkdir(exist_ok=True)
-    start = os.getpid() % 100
-    for k in range(100):
-        domain = 1 + (start + k) % 100
-        fh = open(lock_dir / f"{domain}.lock", "w")
-        try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            fh.close()
-            continue
+    from pf_slam_nodes.ros.domain import claim_domain as claim
+
+    with claim() as (domain, _lock):
         old = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
         os.environ["ROS_DOMAIN_ID"] = str(domain)
         os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
@@ -50,10 +41,6 @@ def claim_domain() -> Iterator[int]:
                     os.environ.pop(key, None)
                 else:
                     os.environ[key] = v
-            fcntl.flock(fh, fcntl.LOCK_UN)
-            fh.close()
-        return
-    raise RuntimeError("no free ROS domain id in 1..100")
 
 
 @pytest.fixture

@@ -67,6 +67,9 @@ def test_laser_scan_ranges(frame):
     assert stamp == 1_700_000_001_000_000_007 and angles == (-1.5, 1.5, 0.75)
     np.testing.assert_array_equal(ranges, np.array(m.ranges, dtype=np.float32))
     assert cdr.laser_scan_ranges(serialize_message(LaserScan()))[2].size == 0
+    stamp2, angles2, limits, ranges2 = cdr.laser_scan_fields(serialize_message(m))
+    assert (stamp2, angles2) == (stamp, angles) and limits == (np.float32(0.1), 30.0)
+    np.testing.assert_array_equal(ranges2, ranges)
 
 
 def test_bad_bytes_name_the_type():

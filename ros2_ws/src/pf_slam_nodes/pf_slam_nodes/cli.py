@@ -61,6 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
         r.add_argument(f"--{role}-topic", metavar="TOPIC",
                        help=f"the bag's {what} topic (default: {default}"
                             + (", or the bag's only one of that type)" if role in ("scan", "odom", "encoders", "imu") else ")"))
+    r.add_argument("--domain", type=int, metavar="N",
+                   help="run on ROS domain N with the normal discovery, so rviz2 or Foxglove can watch "
+                        "(so does a set ROS_DOMAIN_ID); default: isolated on a free domain held by the run")
     r.add_argument("--no-record", action="store_true", help="do not write OUT/result.mcap")
     r.add_argument("--record-map-every", type=float, metavar="S",
                    help="result.mcap: a /map every S seconds of bag time (default: bag duration / 20; "

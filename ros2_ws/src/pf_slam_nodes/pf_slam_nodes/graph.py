@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import json
+import math
 import os
 import re
 import resource
@@ -30,6 +31,7 @@ from .io.bag import BagError, BagReadError, bag_info, check_run_inputs, deserial
 from .io.mapfile import render_snapshot, write_map
 from .io.trajectory import write_tum
 from .ros import cdr
+from .ros.domain import RosDomain, init_context, run_domain
 
 NODE_NAMES = ("bag_replay", "predictor", "correlator", "mapper")
 TEXTURE_INPUT = "/stereo/left/image_raw"  # a bag with it gets the texture node
@@ -397,13 +399,14 @@ def restamp_param(restamp: dict[str, Any]) -> str:
 
 
 def detect_inputs(bag: str, info: dict, inputs: dict[str, str] | None = None,
-                  stamps: dict[str, Any] | None = None) -> dict[str, dict[str, Any]]:
+                  mount: "LidarMount | None" = None, stamps: dict[str, Any] | None = None) -> dict[str, dict[str, Any]]:
     """Parameters implied by the bag: odometry source and pairing, gyro, wheel geometry (from a
-    converted bag's custom data), and the laser's 3D mounting (from /tf_static) when it is tilted.
-    `inputs`: select_inputs()'s choice (default: select_inputs(bag, info)); `stamps`:
-    inspect_stamps()'s answer (default: computed here). The pairing: what the converter wrote in
-    the bag's custom data (pf_slam.odom_sync), else exact when 90 % of the first 200 scans have an
-    odometry message with their stamp (as replayed), else interpolate."""
+    converted bag's custom data), and the lidar's mount (from /tf_static, see lidar_mount:
+    filter.sensor_offset_* when planar, laser.extrinsic otherwise). `inputs`: select_inputs()'s
+    choice (default: select_inputs(bag, info)); `mount`: lidar_mount()'s (default: looked up);
+    `stamps`: inspect_stamps()'s answer (default: computed here). The pairing: what the converter
+    wrote in the bag's custom data (pf_slam.odom_sync), else exact when 90 % of the first 200 scans
+    have an odometry message with their stamp (as replayed), else interpolate."""
     topics = info["topics"]
     inputs = select_inputs(bag, info) if inputs is None else inputs
     check_run_inputs(_canonical_view(info, inputs))  # BagError: an input without messages, unknown types
@@ -437,11 +440,11 @@ def detect_inputs(bag: str, info: dict, inputs: dict[str, str] | None = None,
         out["texture"] = {"left_topic": left, "right_topic": right,
                           "left_info_topic": left.rsplit("/", 1)[0] + "/camera_info",
                           "right_info_topic": right.rsplit("/", 1)[0] + "/camera_info"}
-    scan_tf = _scan_frame_transform(bag, topics, scan_frame)
-    mount = _laser_mount(scan_tf)
-    if mount is not None:
-        out["/**"] = {"laser.extrinsic": mount}
-    for node, params in tf_inputs(topics, scan_tf).items():
+    lm = mount if mount is not None else lidar_mount(bag, info, inputs, scan_frame=scan_frame)
+    out["/**"] = dict(lm.params())
+    if lm.base_from_tf:
+        out["/**"]["base_frame"] = lm.base_frame
+    for node, params in tf_inputs(topics, lm).items():
         out.setdefault(node, {}).update(params)
     return out
 
@@ -475,44 +478,216 @@ def _check_stamps_and_pairing(bag: str, stamps: dict[str, Any], per_node: dict[s
     return {"warnings": warnings, "odom_sync": sync, "timestamps": timestamps}
 
 
-def tf_inputs(topics: dict, scan_tf) -> dict[str, dict[str, Any]]:
+def tf_inputs(topics: dict, mount: "LidarMount | None") -> dict[str, dict[str, Any]]:
     """REP-105 transforms the bag already has, so the graph does not publish them twice: its
     own /tf (odom -> base_link from the robot) turns the predictor's off, a /tf_static mount of
-    the scan's frame (`scan_tf`, from _scan_frame_transform) the mapper's."""
+    the scan's frame (`mount` from /tf_static, see lidar_mount) the mapper's."""
     out: dict[str, dict[str, Any]] = {}
     if "/tf" in topics:
         out["predictor"] = {"publish_odom_tf": False}
-    if scan_tf is not None:
+    if mount is not None and mount.source == "/tf_static":
         out["mapper"] = {"publish_sensor_tf": False}
     return out
 
 
-def _scan_frame_transform(bag: str, topics: dict, scan_frame: str | None):
-    """The bag's /tf_static transform whose child is the scan's frame (its mount), or None."""
-    if "/tf_static" not in topics or not scan_frame:
-        return None
+def _mount_report(mount: LidarMount, detected: dict, user: list[dict], node_names) -> tuple[str, list[str]]:
+    """(the mount line of the input report, warnings). Mount parameters the user gives
+    (--params, overrides) replace the bag's mount as a whole: the bag's are dropped from
+    `detected` (so a planar offset and a 3D extrinsic never mix) and the override is warned."""
+    given = {k: v for layer in user for sec in layer.values() for k, v in sec.items() if k in MOUNT_PARAMS}
+    notes = list(mount.warnings)
+    if not given:
+        if mount.source == "/tf_static":
+            return mount.describe(), notes
+        text = "lidar mount from the parameters (the bag has " + (
+            "no /tf_static" if not notes else "no mount for it in /tf_static") + "): the lidar at the origin of " + mount.base_frame
+        return text, notes
+    for k in MOUNT_PARAMS:
+        detected.get("/**", {}).pop(k, None)
+    merged = node_params(user, "correlator")
+    text = "lidar mount from the parameters: " + ", ".join(f"{k} {merged.get(k, given[k])}" for k in MOUNT_PARAMS
+                                                           if k in given)
+    if mount.source == "/tf_static":
+        notes.append(f"the parameters' lidar mount replaces the bag's ({mount.describe()})")
+    return text, notes
+
+
+#: the parameters that describe the lidar's mount (planar: filter.sensor_offset_*; 3D: laser.extrinsic)
+MOUNT_PARAMS = ("filter.sensor_offset_x_m", "filter.sensor_offset_y_m", "filter.sensor_offset_yaw_rad",
+                "laser.extrinsic")
+
+
+@dataclass
+class LidarMount:
+    """The scan frame's pose in the robot's base frame: ``p_base = rot @ p_scan + t``.
+
+    ``source``: "/tf_static" (composed along ``chain``, base frame first) or "parameters"
+    (the bag has none: the graph's parameters, default identity). ``warnings``: what the user
+    must know (a scan frame missing from /tf_static, a chain that does not reach the base)."""
+    source: str
+    base_frame: str
+    scan_frame: str
+    rot: np.ndarray = field(default_factory=lambda: np.eye(3))
+    t: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    chain: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    base_from_tf: bool = False  # base_frame is the child of odom in the bag's /tf
+
+    @property
+    def planar(self) -> bool:
+        """Scan plane horizontal and upright: an exact 2D mount (x, y, yaw)."""
+        return abs(float(self.rot[2, 2]) - 1.0) < 1e-6
+
+    @property
+    def rpy(self) -> tuple[float, float, float]:
+        """(roll, pitch, yaw) in rad, R = Rz(yaw) Ry(pitch) Rx(roll)."""
+        r = self.rot
+        return (math.atan2(r[2, 1], r[2, 2]), math.asin(max(-1.0, min(1.0, -r[2, 0]))), math.atan2(r[1, 0], r[0, 0]))
+
+    def params(self) -> dict[str, Any]:
+        """The graph parameters that apply it: the planar path when the plane is horizontal and
+        upright (filter.sensor_offset_*: exact 2D; z does not matter), the 3D projection
+        otherwise (laser.extrinsic; an upside-down lidar is a mirrored planar scan there)."""
+        if self.source != "/tf_static":
+            return {}
+        if self.planar:
+            return {"filter.sensor_offset_x_m": float(self.t[0]), "filter.sensor_offset_y_m": float(self.t[1]),
+                    "filter.sensor_offset_yaw_rad": float(math.atan2(self.rot[1, 0], self.rot[0, 0]))}
+        return {"laser.extrinsic": [float(v) for v in self.rot.reshape(-1)] + [float(v) for v in self.t]}
+
+    def describe(self) -> str:
+        """'lidar mount from /tf_static: base_link -> laser: x 0.30 y 0.00 z 0.20, yaw 90.0°'."""
+        roll, pitch, yaw = (math.degrees(v) for v in self.rpy)
+        frames = " -> ".join(self.chain) if self.chain else f"{self.base_frame} -> {self.scan_frame}"
+        angles = f"yaw {yaw:.1f}°" if self.planar else f"roll {roll:.1f}° pitch {pitch:.1f}° yaw {yaw:.1f}°"
+        how = ("planar: filter.sensor_offset_*" if self.planar else
+               "3D: laser.extrinsic, " + ("upside down, a mirrored scan" if self.rot[2, 2] < -1 + 1e-6
+                                          else "tilted, projected"))
+        return (f"lidar mount from {self.source}: {frames}: x {self.t[0]:.2f} y {self.t[1]:.2f} z {self.t[2]:.2f}, "
+                f"{angles} ({how})")
+
+
+def _quat_matrix(q) -> np.ndarray:
+    x, y, z, w = q.x, q.y, q.z, q.w
+    n = math.sqrt(x * x + y * y + z * z + w * w)
+    if not n > 0 or not math.isfinite(n):
+        raise ValueError(f"rotation quaternion ({x}, {y}, {z}, {w}) has no direction")
+    x, y, z, w = x / n, y / n, z / n, w / n
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def _tf_static_tree(bag: str, topics: dict) -> tuple[dict[str, tuple[str, np.ndarray, np.ndarray]], list[str]]:
+    """Every /tf_static transform of the bag: child -> (parent, R, t) (a later message's
+    transform of the same child replaces the earlier one, as tf2 does), and warnings."""
+    tree: dict[str, tuple[str, np.ndarray, np.ndarray]] = {}
+    warnings: list[str] = []
+    if "/tf_static" not in topics:
+        return tree, warnings
     with contextlib.suppress(BagReadError):  # damaged mid-bag: the transforms before it count
         for _, msgtype, _, raw in read_bag(bag, topics=["/tf_static"]):
             for tr in deserialize(raw, msgtype).transforms:
-                if tr.child_frame_id == scan_frame:
-                    return tr
+                tt = tr.transform.translation
+                t = np.array([tt.x, tt.y, tt.z], dtype=np.float64)
+                try:
+                    rot = _quat_matrix(tr.transform.rotation)
+                    if not np.isfinite(t).all():
+                        raise ValueError(f"translation {t.tolist()} is not finite")
+                except ValueError as e:
+                    warnings.append(f"/tf_static: {tr.header.frame_id} -> {tr.child_frame_id} ignored: {e}")
+                    continue
+                tree[tr.child_frame_id.lstrip("/")] = (tr.header.frame_id.lstrip("/"), rot, t)  # tf2 drops a leading /
+    return tree, warnings
+
+
+def _odom_child(bag: str, topics: dict, odom_frame: str) -> str | None:
+    """The robot's base frame by its /tf: the child of `odom_frame` (first 200 messages)."""
+    if "/tf" not in topics:
+        return None
+    with contextlib.suppress(BagReadError):  # damaged mid-bag: what precedes it
+        for k, (_, msgtype, _, raw) in enumerate(read_bag(bag, topics=["/tf"])):
+            for tr in deserialize(raw, msgtype).transforms:
+                if tr.header.frame_id.lstrip("/") == odom_frame and tr.child_frame_id:
+                    return tr.child_frame_id.lstrip("/")
+            if k >= 200:
+                break
     return None
 
 
-def _laser_mount(tr) -> list[float] | None:
-    """R (row-major) + T of base_link -> the scan's frame (`tr`: its /tf_static transform or
-    None), if the scan plane is not horizontal."""
-    if tr is None:
-        return None
-    q = tr.transform.rotation
-    x, y, z, w = q.x, q.y, q.z, q.w
-    rot = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                    [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                    [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-    if abs(rot[2, 2] - 1.0) < 1e-6:  # scan plane horizontal: the 2D path is exact
-        return None
-    t = tr.transform.translation
-    return [float(v) for v in rot.reshape(-1)] + [float(t.x), float(t.y), float(t.z)]
+def _up_chain(tree: dict, frame: str) -> list[str]:
+    """`frame` and its /tf_static ancestors, nearest first (stops at a cycle)."""
+    out = [frame]
+    while out[-1] in tree and tree[out[-1]][0] not in out:
+        out.append(tree[out[-1]][0])
+    return out
+
+
+def _compose_up(tree: dict, chain: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Pose of chain[0] in chain[-1] (chain: a frame and its ancestors, nearest first)."""
+    rot, t = np.eye(3), np.zeros(3)
+    for child in chain[:-1]:
+        _, r, tt = tree[child]
+        rot, t = r @ rot, r @ t + tt
+    return rot, t
+
+
+def lidar_mount(bag: str, info: dict, inputs: dict[str, str], scan_frame: str | None = None,
+                base_frame: str | None = None, odom_frame: str = "odom") -> LidarMount:
+    """The lidar's mount from the bag's /tf_static: the scan's frame composed up the chain of
+    static transforms to the robot's base frame (`base_frame` if given, else the child of
+    `odom_frame` in the bag's /tf, else base_link), e.g. base_link -> shell_link -> rplidar_link.
+    A bag without /tf_static, or whose /tf_static lacks the scan's frame (warned, naming what it
+    has), gives source "parameters": the graph's filter.sensor_offset_* / laser.extrinsic."""
+    topics = info["topics"]
+    if scan_frame is None:
+        for _, msgtype, _, raw in read_bag(bag, topics=[inputs["scan"]]):
+            scan_frame = deserialize(raw, msgtype).header.frame_id
+            break
+    scan_frame = (scan_frame or "").lstrip("/")
+    from_tf = None
+    if base_frame is None:
+        from_tf = _odom_child(bag, topics, odom_frame)
+    base = base_frame or from_tf or "base_link"
+    m = LidarMount("parameters", base, scan_frame, base_from_tf=from_tf is not None)
+    tree, m.warnings = _tf_static_tree(bag, topics)
+    if "/tf_static" not in topics:
+        return m
+    if not scan_frame:
+        m.warnings.append(f"{inputs['scan']}: scans have no header.frame_id: the lidar mount is not looked up "
+                          "in /tf_static; the parameters' mount is used")
+        return m
+    if scan_frame == base:
+        m.source = "/tf_static"
+        m.chain = [base]
+        return m
+    if scan_frame not in tree:
+        have = ", ".join(f"{p} -> {c}" for c, (p, _, _) in sorted(tree.items())) or "no transforms"
+        m.warnings.append(f"/tf_static has no transform to the scan's frame {scan_frame!r} (it has: {have}): "
+                          "the parameters' mount is used (filter.sensor_offset_*, laser.extrinsic; default: "
+                          f"the lidar at the origin of {base})")
+        return m
+    up = _up_chain(tree, scan_frame)
+    if base in up:
+        up = up[:up.index(base) + 1]
+        rot, t = _compose_up(tree, up)
+    elif base in tree and (common := [f for f in _up_chain(tree, base) if f in up]):
+        # the base hangs off the same tree (base_footprint -> base_link -> laser, base_link
+        # the base): scan in base = inverse(base in the common ancestor) * scan in it
+        anc = common[0]
+        up_s, up_b = up[:up.index(anc) + 1], _up_chain(tree, base)
+        up_b = up_b[:up_b.index(anc) + 1]
+        r_s, t_s = _compose_up(tree, up_s)
+        r_b, t_b = _compose_up(tree, up_b)
+        rot, t = r_b.T @ r_s, r_b.T @ (t_s - t_b)
+        up = list(reversed(up_b + list(reversed(up_s))[1:]))  # shown as base -> .. -> ancestor -> .. -> scan
+    else:
+        rot, t = _compose_up(tree, up)
+        m.warnings.append(f"/tf_static: the scan's frame {scan_frame!r} hangs off {up[-1]!r}, not the robot's base "
+                          f"frame {base!r} ({'child of ' + odom_frame + ' in /tf' if from_tf else 'base_frame'}): "
+                          f"the mount is taken relative to {up[-1]!r}")
+    m.source, m.rot, m.t, m.chain = "/tf_static", rot, t, list(reversed(up))
+    return m
 
 
 # ---------------------------------------------------------------------------- the run
@@ -823,7 +998,9 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     `record`: also write result.mcap (ResultRecorder), with a map every `record_map_every_s`
     of bag time (default: bag duration / 20). `input_topics`: the bag's topic per input
     ({'scan': '/front/scan', 'odom': ...}; also `topics.*` in the parameter file), see
-    select_inputs()."""
+    select_inputs(). `domain_id`: run on that ROS domain with the normal discovery (as does a set
+    ROS_DOMAIN_ID), so viewers can watch; default: isolated (ros/domain.py: a free domain held
+    by the run, discovery OFF in one process, LOCALHOST for one process per node)."""
     import rclpy
 
     if processes not in ("single", "multi"):
@@ -834,8 +1011,13 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     texture = (texture and "stereo_right" in inputs
                and info["topics"].get(inputs.get("stereo_left", ""), (None, 0))[1] > 0)  # images, not just the topic
     node_names = NODE_NAMES + (("texture",) if texture else ())
+    user = [file_layer] + ([overrides] if overrides else [])
+    user_mapper = node_params(user, "mapper")
+    mount = lidar_mount(bag, info, inputs, base_frame=user_mapper.get("base_frame"),
+                        odom_frame=str(user_mapper.get("odom_frame", "odom")))
     stamps = inspect_stamps(bag, inputs)
-    layers = [detect_inputs(bag, info, inputs, stamps)]
+    layers = [detect_inputs(bag, info, inputs, mount=mount, stamps=stamps)]
+    mount_text, mount_notes = _mount_report(mount, layers[0], user, node_names)
     if file_layer:
         layers.append(file_layer)
     layers.append({"bag_replay": {"bag": str(bag), "rate": str(rate)},
@@ -862,20 +1044,29 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         # arrival times say nothing about the clocks at --rate max (the bag's stamps were checked
         # before the run: inspect_stamps)
         per_node["predictor"].setdefault("stamp_offset_s", 0.0)
+    # isolated on a free domain of its own unless `domain_id` / ROS_DOMAIN_ID names one
+    # (ros/domain.py); chosen before --out is created: a bad ROS_DOMAIN_ID writes nothing
+    domain_scope = contextlib.ExitStack()
+    dom = domain_scope.enter_context(run_domain(domain_id, single_participant=processes == "single"))
     out = Path(out_dir)
-    out_dir_ = _OutDir(out)
+    try:
+        out_dir_ = _OutDir(out)
+    except BaseException:
+        domain_scope.close()
+        raise
     scans_total = info["topics"][inputs["scan"]][1]
     remaps = topic_remaps(inputs)
     if progress:
-        print(input_report(str(bag), info, inputs, per_node["predictor"]), file=sys.stderr)
+        print(input_report(str(bag), info, inputs, per_node["predictor"]) + f"\n  {mount_text}", file=sys.stderr)
+    for note in mount_notes:
+        print(f"[pf-slam] warning: {note}", file=sys.stderr)
     for line in checks["warnings"]:  # once, with the numbers, also without progress output
         print(f"[pf-slam] warning: {line}", file=sys.stderr)
     bag_duration_s = info["duration_ns"] / 1e9
-    if domain_id is None:
-        domain_id = int(os.environ.get("ROS_DOMAIN_ID", "0"))
+    if progress:
+        print(dom.describe(), file=sys.stderr)
 
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain_id)
+    ctx = None
     children: dict[str, subprocess.Popen] = {}
     stop_signal: list[str] = []  # set by SIGINT / SIGTERM while the graph runs
     result: ResultRecorder | None = None
@@ -885,7 +1076,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     started = [False]  # the graph is up (its nodes built): from then on a failure keeps outputs
     early: list[str] = []  # why the graph failed to start (--out is then removed)
     try:
-        rec_node = rclpy.create_node("pf_slam_recorder", context=ctx)
+        ctx, rec_node = init_context(dom, "pf_slam_recorder")
         nodes.append(rec_node)
         ex = make_executor(executor, ctx)
         ex.add_node(rec_node)
@@ -904,7 +1095,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
                     texture_node = node
             started[0] = True
         else:
-            children = _spawn(per_node, domain_id, out, remaps)
+            children = _spawn(per_node, dom, out, remaps)
         state = {"last_progress": time.monotonic(), "last_count": -1}
         slam_done: dict[str, float] = {}  # "t": when the SLAM finished (before the texture's tail)
 
@@ -985,8 +1176,9 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
             result.close()  # a failed run's partial recording stays readable
         for node in nodes:
             node.destroy_node()
-        if ctx.ok():
+        if ctx is not None and ctx.ok():
             rclpy.shutdown(context=ctx)
+        domain_scope.close()  # the domain's lock (node processes hold it until they are gone)
         if early:  # failed before the graph started: leave no half-written --out
             out_dir_.remove_new()
     if early:
@@ -1028,6 +1220,8 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     if stage_split is not None:
         summary["stage_ms_per_scan"] = stage_split
     summary["inputs"] = inputs
+    summary["lidar_mount"] = {"used": mount_text, "warnings": mount_notes}
+    summary["ros_domain"] = dom.summary()
     if result is not None:
         summary["result_mcap"] = {"file": result.path.name, "messages": dict(result.counts)}
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
@@ -1170,16 +1364,18 @@ def _default_particles() -> int:
     return FilterConfig().num_particles
 
 
-def _spawn(per_node: dict[str, dict[str, Any]], domain_id: int, out: Path,
+def _spawn(per_node: dict[str, dict[str, Any]], dom: RosDomain, out: Path,
            remaps: dict[str, str] | None = None) -> dict[str, subprocess.Popen]:
     """Start one process per node, each with its own parameter file, in their own session: a
     Ctrl-C in the terminal reaches only this process, which stops them in order. They also
-    die with it (PF_SLAM_PARENT_PID, see nodes.common.run_node), so none is left orphaned."""
+    die with it (PF_SLAM_PARENT_PID, see nodes.common.run_node), so none is left orphaned.
+    They run on the run's domain `dom` (RosDomain.child_env) and inherit its lock, so an
+    isolated domain stays held until the last of them is gone."""
     logs = out / "logs"
     logs.mkdir(parents=True, exist_ok=True)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    env = dom.child_env()
     env["PF_SLAM_PARENT_PID"] = str(os.getpid())
+    keep = () if dom.lock_fd is None else (dom.lock_fd,)
     procs = {}
     for name in per_node:  # parameter files next to the logs: what each process ran with
         pfile = logs / f"{name}.params.yaml"
@@ -1188,7 +1384,7 @@ def _spawn(per_node: dict[str, dict[str, Any]], domain_id: int, out: Path,
             procs[name] = subprocess.Popen(
                 [sys.executable, "-m", f"pf_slam_nodes.nodes.{name}", "--ros-args", "--params-file", str(pfile)]
                 + (_remap_args(remaps) or [])[1:],
-                env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+                env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True, pass_fds=keep)
     return procs
 
 
@@ -1196,7 +1392,7 @@ def run_cli(args: Any, log: Callable[[str], None] = print) -> int:
     res = run(args.bag, args.out, params_file=args.params, rate=args.rate, processes=args.processes,
               overrides=_cli_overrides(args), snapshot_every=args.snapshot_every, executor=args.executor,
               texture=not getattr(args, "no_texture", False), record=not getattr(args, "no_record", False),
-              record_map_every_s=getattr(args, "record_map_every", None),
+              record_map_every_s=getattr(args, "record_map_every", None), domain_id=getattr(args, "domain", None),
               input_topics={role: getattr(args, f"{role}_topic", None) for role in INPUT_TYPES})
     s = res.summary
     dropped = "?" if s["scans_dropped"] is None else s["scans_dropped"]

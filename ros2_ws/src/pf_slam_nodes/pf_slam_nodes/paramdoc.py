@@ -29,15 +29,14 @@ _SUFFIX_UNITS = (("_mps", "m/s"), ("_deg", "deg"), ("_px", "px"), ("_per_m", "1/
                  ("_m", "m"), ("_rad", "rad"), ("_s", "s"))
 
 
-def declared_parameters(bag: str | Path = SAMPLE_BAG, domain_id: int = 0) -> dict[str, dict[str, Any]]:
-    """name -> {nodes, default, description} over every node of the graph (ROS's own excluded)."""
-    import rclpy
-
+def declared_parameters(bag: str | Path = SAMPLE_BAG, domain_id: int | None = None) -> dict[str, dict[str, Any]]:
+    """name -> {nodes, default, description} over every node of the graph (ROS's own excluded).
+    The nodes are built on an isolated domain (ros.domain.ros_context) unless `domain_id` or
+    ROS_DOMAIN_ID names one."""
     from .graph import _make_node
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain_id)
+    from .ros.domain import ros_context
     out: dict[str, dict[str, Any]] = {}
-    try:
+    with ros_context(domain_id) as (ctx, _dom):
         for name, overrides in VARIANTS:
             if name == "bag_replay":
                 overrides = dict(overrides, bag=str(bag))
@@ -54,8 +53,6 @@ def declared_parameters(bag: str | Path = SAMPLE_BAG, domain_id: int = 0) -> dic
                         row["default"] = p.value
             finally:
                 node.destroy_node()
-    finally:
-        rclpy.shutdown(context=ctx)
     return out
 
 

@@ -9,6 +9,7 @@ graph cannot be faster than this; `pf-slam bench` prints each run's ratio to it.
 """
 from __future__ import annotations
 
+import contextlib
 import time
 
 from ..io.bag import bag_info
@@ -54,26 +55,24 @@ def _sink_class():
 
 def replay_ceiling(bag: str, executor: str = "events", domain_id: int | None = None,
                    timeout_s: float = 600.0) -> dict:
-    """Replay `bag` at max into counting sinks in one process; returns wall time, RTF, counts."""
-    import os
-
-    import rclpy
+    """Replay `bag` at max into counting sinks in one process; returns wall time, RTF, counts.
+    On an isolated domain (ros.domain.ros_context) unless `domain_id` / ROS_DOMAIN_ID names one."""
     from rclpy.parameter import Parameter
 
     from ..graph import make_executor
     from ..nodes.bag_replay import BagReplay
+    from ..ros.domain import ros_context
 
     info = bag_info(bag)
     tp = {t: m for t, (m, _) in info["topics"].items()}
     odom = {t: tp[t] for t in ("/odom", "/encoders", "/fog") if t in tp}
     scan = {"/scan": tp["/scan"]} if "/scan" in tp else {}
-    if domain_id is None:
-        domain_id = int(os.environ.get("ROS_DOMAIN_ID", "0"))
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain_id)
+    domain_scope = contextlib.ExitStack()
+    ctx, _dom = domain_scope.enter_context(ros_context(domain_id))
     nodes = []
-    ex = make_executor(executor, ctx)
+    ex = None
     try:
+        ex = make_executor(executor, ctx)
         Sink = _sink_class()
         sinks = [Sink("predictor", {**scan, **odom}, True, ctx), Sink("correlator", scan, False, ctx),
                  Sink("mapper", scan, False, ctx)]
@@ -94,11 +93,11 @@ def replay_ceiling(bag: str, executor: str = "events", domain_id: int | None = N
         wall = time.monotonic() - t0
         received = sinks[0].counts
     finally:
-        ex.shutdown()
+        if ex is not None:
+            ex.shutdown()
         for n in nodes:
             n.destroy_node()
-        if ctx.ok():
-            rclpy.shutdown(context=ctx)
+        domain_scope.close()
     dur = info["duration_ns"] / 1e9
     return {"bag": str(bag), "bag_duration_s": round(dur, 3), "wall_time_s": round(wall, 3),
             "real_time_factor": round(dur / wall, 2) if wall > 0 else None,

@@ -16,6 +16,7 @@ from rclpy.executors import SingleThreadedExecutor
 from pf_slam_interfaces.msg import Particle, ParticleArray, ParticleArrayNested
 
 from ..ros import convert, qos
+from ..ros.domain import ros_context
 
 
 def _soa_msg(poses: np.ndarray, lw: np.ndarray) -> ParticleArray:
@@ -68,18 +69,15 @@ def measure(n_particles: int, layout: str, repeats: int, context) -> float:
     return dt
 
 
-def run(counts=(100, 10_000), domain_id: int = 77) -> list[dict]:
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain_id)
+def run(counts=(100, 10_000), domain_id: int | None = None) -> list[dict]:
+    """`domain_id`: None = an isolated domain (ros.domain.ros_context), unless ROS_DOMAIN_ID is set."""
     rows = []
-    try:
+    with ros_context(domain_id) as (ctx, _dom):
         for n in counts:
             for layout in ("soa", "nested"):
                 repeats = max(5, min(500, 200_000 // n))
                 rows.append({"particles": n, "layout": layout,
                              "ms_per_msg": 1e3 * measure(n, layout, repeats, ctx)})
-    finally:
-        rclpy.shutdown(context=ctx)
     return rows
 
 
@@ -97,7 +95,7 @@ if __name__ == "__main__":
     print(format_table(run()))
 
 
-def measure_fog(seconds: float = 10.0, batch: int = 10, domain_id: int = 78) -> dict:
+def measure_fog(seconds: float = 10.0, batch: int = 10, domain_id: int | None = None) -> dict:
     """Publish + receive one simulated second-by-second FOG stream (1 kHz) through rclpy, in one
     executor: per-sample geometry_msgs/Vector3Stamped vs FogBatch of `batch` samples.
 
@@ -107,13 +105,11 @@ def measure_fog(seconds: float = 10.0, batch: int = 10, domain_id: int = 78) -> 
     from geometry_msgs.msg import Vector3Stamped
 
     from pf_slam_interfaces.msg import FogBatch
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain_id)
     n = int(seconds * 1000)
     stamps = (np.arange(n, dtype=np.int64) + 1) * 1_000_000
     dyaw = np.random.default_rng(0).normal(0, 1e-4, n)
     out = {}
-    try:
+    with ros_context(domain_id) as (ctx, _dom):
         for layout in ("vector3", "batch"):
             pub_node = rclpy.create_node("fog_pub", context=ctx)
             sub_node = rclpy.create_node("fog_sub", context=ctx)
@@ -160,6 +156,4 @@ def measure_fog(seconds: float = 10.0, batch: int = 10, domain_id: int = 78) -> 
             ex.shutdown()
             pub_node.destroy_node()
             sub_node.destroy_node()
-    finally:
-        rclpy.shutdown(context=ctx)
     return out

@@ -378,7 +378,8 @@ class FilterConfig(_ConfigBase):
     min_rotation_rad : float
         ... or turned at least this much (rad).
     sensor_offset_x_m, sensor_offset_y_m, sensor_offset_yaw_rad : float
-        Pose of the laser in the robot (base) frame.
+        Pose of the laser in the robot (base) frame (a planar, upright mount; `pf-slam run` sets
+        them from the bag's /tf_static).
     pose_estimate : str
         The pose reported for a corrected scan and used by the mapper: ``'best'`` (the
         highest-weight particle, the classic choice) or ``'mean'`` (the weighted mean of the
@@ -417,7 +418,8 @@ class LaserConfig(_ConfigBase):
     """How the laser's returns become planar points for a 2D map.
 
     A planar laser (the CARMEN robots) needs nothing here: its 2D mounting is
-    ``filter.sensor_offset_*``. A tilted laser (the car's LMS511, roll ~143 deg) is projected
+    ``filter.sensor_offset_*``. An upside-down laser (roll 180 deg) is given here too: its scan
+    plane is horizontal, so it is used as an exact mirrored planar scan (no projection). A tilted laser (the car's LMS511, roll ~143 deg) is projected
     in 3D: each return ``r`` at beam angle ``a`` is ``R @ [r cos a, r sin a, 0] + T`` in the
     vehicle frame; returns outside ``[min_range_m, max_range_m]`` or whose height is outside
     ``[min_height_m, max_height_m]`` (the ground, the sky) are dropped, and the rest are used by

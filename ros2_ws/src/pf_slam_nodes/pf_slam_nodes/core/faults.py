@@ -12,10 +12,13 @@ from typing import Optional
 
 import numpy as np
 
+from .scan import scan_limits_ok
+
 #: the counters of summary.json "faults" (the odometry buffers count theirs: odom_time_backwards,
 #: odom_missing, fog_out_of_order; WheelOdometryIntegrator counts encoder_jump)
 SCAN_BAD_RANGES = "scan_bad_ranges"          # a scan with NaN or negative ranges: those beams ignored
 SCAN_COUNT_MISMATCH = "scan_count_mismatch"  # range count != what the angles say: not corrected with
+SCAN_BAD_LIMITS = "scan_bad_limits"          # range_min/range_max unusable (max <= 0, min > max, NaN, min < 0): not used
 TIME_BACKWARDS = "time_backwards"            # a scan stamped before the previous one
 TIME_GAP = "time_gap"                        # a scan more than time_gap_s after the previous one
 SCAN_UNREADABLE = "scan_unreadable"          # bytes that are not a LaserScan: posed from odometry
@@ -33,12 +36,13 @@ class ScanChecks:
         if not time_gap_s > 0:
             raise ValueError(f"time_gap_s must be > 0, got {time_gap_s!r}")
         self.gap_ns = int(time_gap_s * 1e9)
-        self.counts = {SCAN_BAD_RANGES: 0, SCAN_COUNT_MISMATCH: 0, SCAN_UNREADABLE: 0, TIME_BACKWARDS: 0,
-                       TIME_GAP: 0}
+        self.counts = {SCAN_BAD_RANGES: 0, SCAN_COUNT_MISMATCH: 0, SCAN_BAD_LIMITS: 0, SCAN_UNREADABLE: 0,
+                       TIME_BACKWARDS: 0, TIME_GAP: 0}
         self.last_stamp_ns: Optional[int] = None
 
     def check(self, stamp_ns: int, ranges: np.ndarray, angle_min: float, angle_max: float,
-              angle_increment: float) -> tuple[bool, list[tuple[str, str]]]:
+              angle_increment: float, range_min: float = 0.0,
+              range_max: float = math.inf) -> tuple[bool, list[tuple[str, str]]]:
         """One scan -> (usable for a correction?, [(fault kind, what was wrong)]).
 
         NaN and negative ranges (``-inf`` included) are faults; ``+inf`` is "no return" (REP 117)
@@ -47,6 +51,13 @@ class ScanChecks:
         differs by more than one from ``(angle_max - angle_min) / angle_increment + 1`` (drivers
         differ on whether ``angle_max`` is the last beam) makes the beam angles ambiguous: the
         scan is posed from odometry and not corrected with.
+
+        Values outside ``[range_min, range_max]`` are no returns (REP 117: the stages ignore
+        them) and not counted. Limits that cannot gate anything (``range_max <= 0``,
+        ``range_min > range_max``, ``range_min < 0`` or not finite, ``range_max`` NaN:
+        :func:`~pf_slam_nodes.core.scan.scan_limits_ok`; ``range_max = +inf`` is no limit) leave
+        no valid range: a ``scan_bad_limits`` fault, and the scan is posed from odometry, neither
+        corrected nor mapped with (as a beam count mismatch).
         """
         faults: list[tuple[str, str]] = []
         r = np.asarray(ranges)
@@ -55,14 +66,20 @@ class ScanChecks:
             with np.errstate(invalid="ignore"):
                 bad = int(np.count_nonzero(np.isnan(r) | (r < 0)))
             faults.append((SCAN_BAD_RANGES, f"{bad} of {r.size} ranges NaN or negative, ignored"))
-        usable = True
+        limits_ok = scan_limits_ok(range_min, range_max)
+        if not limits_ok:
+            faults.append((SCAN_BAD_LIMITS, f"range_min {range_min:g}, range_max {range_max:g}: no range can be "
+                           "valid (needs 0 <= range_min <= range_max, range_max > 0, not NaN); not corrected "
+                           "or mapped with, posed from odometry"))
+        count_ok = True
         if angle_increment != 0 and math.isfinite(angle_min + angle_max + angle_increment):
             expected = (angle_max - angle_min) / angle_increment + 1.0
             if abs(expected - r.size) > 1.5:  # rounding of float32 angles: well under half a beam
-                usable = False
+                count_ok = False
         else:
-            expected, usable = float("nan"), False
-        if not usable:
+            expected, count_ok = float("nan"), False
+        usable = limits_ok and count_ok
+        if not count_ok:
             faults.append((SCAN_COUNT_MISMATCH, f"{r.size} ranges but angle_min {angle_min:.4f}, angle_max "
                            f"{angle_max:.4f}, increment {angle_increment:.6f} give {expected:.1f}: "
                            "not corrected with, posed from odometry"))

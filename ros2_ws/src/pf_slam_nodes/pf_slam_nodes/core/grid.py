@@ -197,8 +197,9 @@ class LogOddsGrid:
         sensor_offset : numpy.ndarray, optional
             ``(3,)`` sensor pose in the robot frame.
         range_min_m, range_max_m : float
-            Sensor limits: beams below ``range_min_m`` or NaN are ignored; beams above
-            ``range_max_m`` or inf are "no return".
+            Sensor limits (the scan's ``range_min`` / ``range_max``): beams outside them, NaN
+            or ``-inf`` are ignored (REP 117: not a measurement, neither a hit nor free space);
+            ``+inf`` is "no return" (free space up to ``range_max_usable_m``).
 
         Returns
         -------
@@ -216,8 +217,8 @@ class LogOddsGrid:
             raise ValueError(f"ranges and angles must have the same length, got {r.shape} and {a.shape}")
         usable = float(self.cfg.range_max_usable_m)
         with np.errstate(invalid="ignore"):
-            valid = ~np.isnan(r) & (r >= range_min_m) & (r > 0.0)
-            is_hit = valid & np.isfinite(r) & (r <= range_max_m) & (r <= usable)
+            valid = ~np.isnan(r) & (r >= range_min_m) & (r > 0.0) & ((r <= range_max_m) | (r == np.inf))
+            is_hit = valid & np.isfinite(r) & (r <= usable)
         r = np.where(is_hit, r, usable)[valid]
         a = a[valid]
         is_hit = is_hit[valid]
@@ -263,8 +264,8 @@ class LogOddsGrid:
 
         Each cell is updated at most once per scan: traversed cells get ``log_odds_miss``, beam
         endpoint cells get ``log_odds_hit`` (a hit wins over a traversal by another beam); beams
-        without return or longer than ``range_max_usable_m`` mark free space up to
-        ``range_max_usable_m`` and no hit. Values are clipped to ``[clip_min, clip_max]``; cells
+        without return (``+inf``) or longer than ``range_max_usable_m`` mark free space up to
+        ``range_max_usable_m`` and no hit; finite beams beyond ``range_max_m`` are ignored. Values are clipped to ``[clip_min, clip_max]``; cells
         outside the grid are never written.
         """
         free_idx, hit_idx = self.trace_scan(pose, ranges, angles, sensor_offset, range_min_m, range_max_m)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -127,18 +129,51 @@ def transform_points_batch(points: np.ndarray, poses: np.ndarray) -> np.ndarray:
     return out
 
 
-def planar_scan(ranges: np.ndarray, angles: np.ndarray, laser, planar_offset: np.ndarray
+def scan_limits_ok(range_min: float, range_max: float) -> bool:
+    """Whether a scan's ``range_min`` / ``range_max`` can gate its ranges: ``range_min`` finite,
+    ``0 <= range_min <= range_max``, ``range_max > 0`` and not NaN (``+inf``: no upper limit,
+    the core's default). A scan that fails this has no valid range (REP 117: values outside the
+    limits are no returns), so nothing of it is used."""
+    return (math.isfinite(range_min) and 0.0 <= range_min <= range_max and range_max > 0.0
+            and not math.isnan(range_max))
+
+
+def gate_ranges(ranges: np.ndarray, range_min: float, range_max: float) -> np.ndarray:
+    """A scan's ranges gated by its own limits (sensor_msgs/LaserScan, REP 117), float64 ``(B,)``.
+
+    Finite values outside ``[range_min, range_max]`` are not measurements (an RPLidar reports
+    up to 22 m with ``range_max`` 12): they become NaN, which every stage ignores (never a hit,
+    never free space). ``+inf`` stays: "nothing within range", traced as free space by the
+    mapper. ``-inf`` (too close) and NaN stay ignored. Bad limits (:func:`scan_limits_ok`
+    false) gate every beam out.
+    """
+    r = np.asarray(ranges, dtype=np.float64)
+    if not scan_limits_ok(range_min, range_max):
+        return np.full(r.shape, np.nan)
+    with np.errstate(invalid="ignore"):
+        outside = (r < range_min) | ((r > range_max) & (r != np.inf))
+    if not outside.any():
+        return r
+    return np.where(outside, np.nan, r)
+
+
+def planar_scan(ranges: np.ndarray, angles: np.ndarray, laser, planar_offset: np.ndarray,
+                range_min: float = 0.0, range_max: float = math.inf
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A scan as a planar sensor in the vehicle frame sees it: ``(ranges, angles, offset (3,))``.
 
-    For a planar laser (``laser.is_3d`` false) the scan is returned as it is with
-    ``planar_offset``, only range-gated. For a 3D mount (see
-    :class:`~pf_slam_nodes.core.config.LaserConfig`) every return is projected into the vehicle
-    frame, gated by range and height, and re-expressed as range/bearing from the sensor's
-    ground projection ``(T_x, T_y)``; dropped beams become NaN (ignored downstream, never
-    "free space"). Vectorised over beams.
+    First the scan's own limits gate its ranges (:func:`gate_ranges`; ``range_min``,
+    ``range_max``: the message's fields): a finite value outside them is NaN, ignored
+    downstream. For a planar laser (``laser.is_3d`` false) the scan is then returned with
+    ``planar_offset`` (its mount ``[x, y, yaw]`` in the base frame), gated by
+    ``laser.min_range_m`` (below: NaN) and ``laser.max_range_m`` (beyond: ``+inf``, no return).
+    For a 3D mount (see :class:`~pf_slam_nodes.core.config.LaserConfig`: a tilted laser, or an
+    upside-down one, whose scan is mirrored) every return is projected into the vehicle frame,
+    gated by range and height, and re-expressed as range/bearing from the sensor's ground
+    projection ``(T_x, T_y)``; dropped beams become NaN (ignored downstream, never "free
+    space"). Vectorised over beams.
     """
-    r = np.asarray(ranges, dtype=np.float64)
+    r = gate_ranges(ranges, range_min, range_max)
     a = np.asarray(angles, dtype=np.float64)
     with np.errstate(invalid="ignore"):
         out_of_gate = (r < laser.min_range_m) | (r > laser.max_range_m)
@@ -148,6 +183,15 @@ def planar_scan(ranges: np.ndarray, angles: np.ndarray, laser, planar_offset: np
         return r, a, np.asarray(planar_offset, dtype=np.float64).reshape(3)
     ext = np.asarray(laser.extrinsic, dtype=np.float64)
     rot, t = ext[:9].reshape(3, 3), ext[9:]
+    if abs(abs(rot[2, 2]) - 1.0) < 1e-9:
+        # scan plane horizontal (upside down: rot[2, 2] = -1, a mirrored scan): exact 2D, the
+        # ranges as they are, each beam at yaw +- its angle; no-returns stay free space
+        keep_all = laser.min_height_m <= t[2] <= laser.max_height_m
+        r = np.where(r < laser.min_range_m, np.nan, np.where(r > laser.max_range_m, np.inf, r))
+        if not keep_all:
+            r = np.full(r.shape, np.nan)
+        yaw = math.atan2(rot[1, 0], rot[0, 0])
+        return r, yaw + math.copysign(1.0, rot[2, 2]) * a, np.array([t[0], t[1], 0.0])
     with np.errstate(invalid="ignore"):
         local = np.stack([r * np.cos(a), r * np.sin(a), np.zeros_like(r)])  # (3, B)
         p = rot @ local + t[:, None]

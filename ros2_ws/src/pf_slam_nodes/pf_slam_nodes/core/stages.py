@@ -195,7 +195,8 @@ class CorrectionStage:
         t0 = time.perf_counter()
         particles = np.asarray(particles, dtype=np.float64).reshape(-1, 3)
         log_w = np.asarray(log_weights, dtype=np.float64)
-        ranges, angles, offset = planar_scan(ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset)
+        ranges, angles, offset = planar_scan(ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset,
+                                             range_min, range_max)
         pts = scan_to_points(ranges, angles, max(range_min, 1e-6), min(range_max, self.corr_cfg.range_max_m))
         if np.any(offset):
             pts = transform_points(pts, offset)
@@ -265,7 +266,8 @@ class MappingStage:
             self.grid = LogOddsGrid(self.grid_cfg, center_xy=pose[:2])
             self._occ = self.grid.occupancy()
         g = self.grid
-        ranges, angles, offset = planar_scan(ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset)
+        ranges, angles, offset = planar_scan(ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset,
+                                             range_min, range_max)
         g.integrate_scan(pose, ranges, angles, offset, range_min, range_max)
         self.pose = pose.copy()
         idx = g.last_touched_idx

@@ -22,8 +22,9 @@ is always sent on particles/predicted (update=false if it is a pass-through) so 
 and the mapper see the end of the run.
 
 Bad input is checked here, where every scan and odometry message passes (core/faults.py): NaN or
-negative ranges, a beam count that disagrees with the angles (that scan is posed from odometry,
-not corrected with), scan stamps stepping back or jumping ahead by more than time_gap_s, encoder
+negative ranges, a beam count that disagrees with the angles or range limits that leave no valid
+range (range_max <= 0, range_min > range_max; that scan is posed from odometry, not corrected
+or mapped with), scan stamps stepping back or jumping ahead by more than time_gap_s, encoder
 counter jumps (wheels.max_speed_mps), NaN/inf odometry (dropped). Each is logged (throttled, per
 kind) and counted; the counts go out on pf_slam/status (latched JSON, on change at most once a
 second, and once more, "final", when the last scan of the bag is posed) for summary.json.
@@ -257,8 +258,8 @@ class Predictor(Node):
 
     def _on_scan(self, raw: bytes) -> None:
         try:
-            stamp, (a_min, a_max, a_inc), ranges = cdr.laser_scan_ranges(raw)
-            usable, faults = self.checks.check(stamp, ranges, a_min, a_max, a_inc)
+            stamp, (a_min, a_max, a_inc), (r_min, r_max), ranges = cdr.laser_scan_fields(raw)
+            usable, faults = self.checks.check(stamp, ranges, a_min, a_max, a_inc, r_min, r_max)
         except ValueError as exc:
             # posed from odometry at its own stamp when the header is readable and plausible, else
             # at the previous scan's stamp and odometry (without waiting)

@@ -95,13 +95,20 @@ def joint_state_positions(raw: bytes) -> tuple[int, np.ndarray]:
 def laser_scan_ranges(raw: bytes) -> tuple[int, tuple[float, float, float], np.ndarray]:
     """sensor_msgs/LaserScan bytes -> (stamp ns, (angle_min, angle_max, angle_increment),
     ranges (B,) float32 view); the rest of the message is not read."""
+    stamp, angles, _, ranges = laser_scan_fields(raw)
+    return stamp, angles, ranges
+
+
+def laser_scan_fields(raw: bytes) -> tuple[int, tuple[float, float, float], tuple[float, float], np.ndarray]:
+    """sensor_msgs/LaserScan bytes -> (stamp ns, (angle_min, angle_max, angle_increment),
+    (range_min, range_max), ranges (B,) float32 view); the intensities are not read."""
     r = CdrReader(raw, "sensor_msgs/LaserScan")
     stamp = r.header()
     r._align(4)
     r._need(28)  # angle_min, angle_max, angle_increment, time_increment, scan_time, range_min, range_max
-    angles = struct.unpack_from(r.end + "3f", raw, r.pos)
+    f = struct.unpack_from(r.end + "7f", raw, r.pos)
     r.pos += 28
-    return stamp, angles, r.array("f4")
+    return stamp, f[:3], f[5:], r.array("f4")
 
 
 _U32 = struct.Struct("<I")

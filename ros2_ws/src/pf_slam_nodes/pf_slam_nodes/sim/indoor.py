@@ -63,6 +63,7 @@ __all__ = [
     'ray_cast',
     'simulate_indoor',
     'simulate_odometry',
+    'mount_pose',
     'simulate_scans',
 ]
 
@@ -431,9 +432,29 @@ def simulate_odometry(poses: np.ndarray, rng: np.random.Generator,
     return np.stack([x, y, np.arctan2(np.sin(th), np.cos(th))], axis=1)
 
 
+def mount_pose(chain: Sequence[tuple[str, str, Sequence[float], Sequence[float]]]
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """``(R (3, 3), t (3,))`` of the last frame of a chain of static transforms
+    ``(parent, child, (x, y, z), (roll, pitch, yaw) rad)`` in the first parent (each child the
+    next one's parent)."""
+    from pf_slam_nodes.io.calib import rpy_to_matrix
+    rot, t = np.eye(3), np.zeros(3)
+    for k, (parent, child, xyz, rpy) in enumerate(chain):
+        if k and parent != chain[k - 1][1]:
+            raise ValueError(f'mount chain: {parent!r} is not the previous child {chain[k - 1][1]!r}')
+        r = rpy_to_matrix(np.degrees(np.asarray(rpy, dtype=np.float64)))
+        t = t + rot @ np.asarray(xyz, dtype=np.float64)
+        rot = rot @ r
+    return rot, t
+
+
 def simulate_scans(poses: np.ndarray, segments: np.ndarray,
-                   rng: np.random.Generator) -> np.ndarray:
+                   rng: np.random.Generator, mount: tuple[np.ndarray, np.ndarray] | None = None
+                   ) -> np.ndarray:
     """Laser ranges at ``poses``: ray cast, ``N(0, RANGE_SIGMA_M^2)`` noise, dropouts.
+
+    ``mount``: the laser's ``(R, t)`` in the base frame (its scan plane horizontal: upright or
+    upside down, which mirrors the beams); default at the base origin.
 
     Returns
     -------
@@ -442,7 +463,17 @@ def simulate_scans(poses: np.ndarray, segments: np.ndarray,
         ``RANGE_MAX_M``, a noisy range beyond it, or a dropout with probability
         ``DROPOUT_PROB``).
     """
-    r = ray_cast(poses, beam_angles(), segments, RANGE_MAX_M).reshape(-1, N_BEAMS)
+    angles = beam_angles()
+    if mount is not None:
+        rot, t = (np.asarray(v, dtype=np.float64) for v in mount)
+        if abs(abs(rot[2, 2]) - 1.0) > 1e-9:
+            raise ValueError(f'the simulated laser must scan a horizontal plane, got R = {rot.tolist()}')
+        p = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+        c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
+        poses = np.stack([p[:, 0] + c * t[0] - s * t[1], p[:, 1] + s * t[0] + c * t[1],
+                          p[:, 2] + math.atan2(rot[1, 0], rot[0, 0])], axis=-1)
+        angles = math.copysign(1.0, rot[2, 2]) * angles
+    r = ray_cast(poses, angles, segments, RANGE_MAX_M).reshape(-1, N_BEAMS)
     r = r + RANGE_SIGMA_M * rng.normal(size=r.shape)
     r[rng.random(size=r.shape) < DROPOUT_PROB] = np.inf
     r[r > RANGE_MAX_M] = np.inf
@@ -474,7 +505,9 @@ class SimResult:
 
 def simulate_indoor(out_dir: str | os.PathLike, seed: int = 0, duration_s: float = 60.0,
                     odom_rate_hz: int = 20, overwrite: bool = False,
-                    storage: str = 'mcap') -> SimResult:
+                    storage: str = 'mcap',
+                    laser_mount: Sequence[tuple[str, str, Sequence[float], Sequence[float]]] | None = None
+                    ) -> SimResult:
     """Simulate the office drive and write the sample bag, ground truth and map.
 
     Writes ``out_dir/sample_indoor`` (rosbag2: ``/scan`` ``sensor_msgs/LaserScan`` frame
@@ -495,6 +528,11 @@ def simulate_indoor(out_dir: str | os.PathLike, seed: int = 0, duration_s: float
         A multiple of 10 dividing 100 (10, 20, 50 or 100).
     overwrite : bool
         Replace an existing ``sample_indoor`` bag (else ``BagError``).
+    laser_mount : sequence of (parent, child, (x, y, z), (roll, pitch, yaw) rad), optional
+        The laser's mount as a chain of static transforms from ``base_link`` (written to
+        ``/tf_static`` as given; the scans are in the last child's frame and simulated from that
+        pose). Its scan plane must be horizontal (roll 0 or 180 deg, pitch 0). Default:
+        ``base_link -> laser`` identity.
     """
     if not (isinstance(duration_s, (int, float)) and 0.1 <= duration_s <= 3600.0):
         raise ValueError(f'duration_s must be in [0.1, 3600] s, got {duration_s!r}')
@@ -517,7 +555,12 @@ def simulate_indoor(out_dir: str | os.PathLike, seed: int = 0, duration_s: float
     t_s, truth = plan_drive(n_scans / SCAN_RATE_HZ, drive_rng)
     odom = simulate_odometry(truth, odom_rng)
     scan_idx = np.arange(0, len(t_s), scan_step)
-    ranges = simulate_scans(truth[scan_idx], world.segments, laser_rng)
+    chain = list(laser_mount) if laser_mount else [(BASE_FRAME, LASER_FRAME, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))]
+    if chain[0][0] != BASE_FRAME:
+        raise ValueError(f'laser_mount must start at {BASE_FRAME!r}, got {chain[0][0]!r}')
+    mount = mount_pose(chain) if laser_mount else None
+    laser_frame = chain[-1][1]
+    ranges = simulate_scans(truth[scan_idx], world.segments, laser_rng, mount)
     step_ns = 1_000_000_000 // SIM_RATE_HZ
     stamps_ns = EPOCH_NS + np.arange(len(t_s), dtype=np.int64) * step_ns
     dt = 1.0 / SIM_RATE_HZ
@@ -534,7 +577,7 @@ def simulate_indoor(out_dir: str | os.PathLike, seed: int = 0, duration_s: float
                             f'duration_s={n_scans / SCAN_RATE_HZ:g} odom_rate_hz={odom_rate_hz}')
         t0 = int(stamps_ns[0])
         bag.write(TF_STATIC_TOPIC, t0, tf_static(
-            t0, [(BASE_FRAME, LASER_FRAME, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))]))
+            t0, [(parent, child, tuple(float(v) for v in xyz), _rpy_quat(rpy)) for parent, child, xyz, rpy in chain]))
         for i in range(len(t_s)):
             stamp = int(stamps_ns[i])
             if i % odom_step == 0:
@@ -543,7 +586,7 @@ def simulate_indoor(out_dir: str | os.PathLike, seed: int = 0, duration_s: float
                 n_odom += 1
             if i % scan_step == 0:
                 bag.write(SCAN_TOPIC, stamp, laser_scan(
-                    stamp, LASER_FRAME, ANGLE_MIN_RAD, ANGLE_INCREMENT_RAD,
+                    stamp, laser_frame, ANGLE_MIN_RAD, ANGLE_INCREMENT_RAD,
                     ranges[i // scan_step], RANGE_MIN_M, RANGE_MAX_M,
                     scan_time=1.0 / SCAN_RATE_HZ))
 
@@ -558,6 +601,16 @@ def simulate_indoor(out_dir: str | os.PathLike, seed: int = 0, duration_s: float
         n_odom=n_odom,
         path_length_m=float(np.hypot(*np.diff(truth[:, :2], axis=0).T).sum()),
         odom_drift_m=float(np.hypot(*(odom[last, :2] - truth[last, :2]))))
+
+
+def _rpy_quat(rpy: Sequence[float]) -> tuple[float, float, float, float]:
+    """(roll, pitch, yaw) rad -> quaternion (x, y, z, w) of Rz(yaw) Ry(pitch) Rx(roll)."""
+    r, p, y = (0.5 * float(v) for v in rpy)
+    if r == 0.0 and p == 0.0 and y == 0.0:
+        return (0.0, 0.0, 0.0, 1.0)
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    return (sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy)
 
 
 # --------------------------------------------------------------------------------------------
