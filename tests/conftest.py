@@ -27,20 +27,11 @@ def claim_domain() -> Iterator[int]:
     domains 1..100, an exclusive file lock held while the context is open). ROS_DOMAIN_ID and
     ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST are set for child processes.
     """
+    from pf_slam_nodes.ros.domain import _environ
     from pf_slam_nodes.ros.domain import claim_domain as claim
 
-    with claim() as (domain, _lock):
-        old = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
-        os.environ["ROS_DOMAIN_ID"] = str(domain)
-        os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-        try:
-            yield domain
-        finally:
-            for key, v in old.items():
-                if v is None:
-                    os.environ.pop(key, None)
-                else:
-                    os.environ[key] = v
+    with claim() as (domain, _lock), _environ(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST"):
+        yield domain
 
 
 @pytest.fixture
