@@ -28,3 +28,16 @@ def test_launch_file_compiles_and_names_installed_executables():
     assert (PKG / "config" / _constant(LAUNCH, "DEFAULT_PARAMS")).is_file()
     for arg in ("bag", "params_file", "use_sim_time"):
         assert f'DeclareLaunchArgument("{arg}"' in source
+
+
+def test_launch_file_profile_argument():
+    """profile:=auto reads the bag through pf_slam_nodes.profiles (as `pf-slam run`), the
+    fallback is the indoor profile, and every profile name it documents exists."""
+    source = LAUNCH.read_text()
+    assert 'DeclareLaunchArgument("profile", default_value="auto"' in source
+    assert "profiles.profile_for_bag(bag, forced=profile)" in source
+    assert 'profiles.profile_file("indoor")' in source
+    from pf_slam_nodes import profiles
+    for name in ("indoor", "kaist", "mines", "sim_indoor"):
+        assert name in source and profiles.profile_file(name).is_file()
+    assert profiles.PROFILES["indoor"] == _constant(LAUNCH, "DEFAULT_PARAMS")

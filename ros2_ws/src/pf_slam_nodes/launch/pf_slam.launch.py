@@ -1,6 +1,13 @@
 """Launch the pf_slam graph on a real ROS 2 Jazzy install (colcon workspace).
 
-    ros2 launch pf_slam_nodes pf_slam.launch.py bag:=/path/to/bag params_file:=<file> use_sim_time:=true
+    ros2 launch pf_slam_nodes pf_slam.launch.py bag:=/path/to/bag [params_file:=<file>] [profile:=auto] use_sim_time:=true
+
+Parameters, as `pf-slam run`: profile:=auto (the default) reads the bag's metadata and sensors and
+picks the profile of config/ that fits (pf_slam_nodes.profiles: converter metadata pf_slam.format,
+else a tilted lidar -> kaist, a planar one -> indoor = carmen_indoor.yaml); if the bag cannot be
+read there, the indoor profile. The chosen profile is printed. A params_file:= is the whole tuning
+(no profile under it, as `pf-slam run --params`) unless profile:=NAME is given, which layers that
+profile under it; profile:=none uses the nodes' built-in defaults.
 
 Bring your own bag: scan_topic:=/front/scan odom_topic:=/wheel/odom (the nodes' relative topics are
 remapped; bag_replay publishes the bag's own names). texture:=true adds the stereo texture node.
@@ -10,29 +17,60 @@ import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, LogInfo, OpaqueFunction
 from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 NODES = ("bag_replay", "predictor", "correlator", "mapper", "texture")  # console scripts (setup.py)
-DEFAULT_PARAMS = "carmen_indoor.yaml"  # in the package's share/config
+DEFAULT_PARAMS = "carmen_indoor.yaml"  # in the package's share/config: the indoor profile (fallback of auto)
 
 
-def generate_launch_description():
+def _parameter_files(context):
+    """[profile file?, params_file?] for the nodes (later wins), and the line saying which profile."""
     share = get_package_share_directory("pf_slam_nodes")
+    bag = LaunchConfiguration("bag").perform(context)
+    params_file = LaunchConfiguration("params_file").perform(context)
+    profile = LaunchConfiguration("profile").perform(context) or "auto"
+    from pf_slam_nodes import profiles
+    if params_file and profile == "auto":
+        files, line = [], f"[pf-slam] profile: none (params_file {params_file} is the whole tuning)"
+    else:
+        try:
+            prof = profiles.profile_for_bag(bag, forced=profile)
+        except Exception as e:  # an unreadable bag: the indoor profile (documented above)
+            if profile not in ("auto", ""):
+                raise
+            prof = profiles.Profile("indoor", f"the bag could not be read ({e}): indoor by default",
+                                    profiles.profile_file("indoor"))
+        path = os.path.join(share, "config", prof.file.name) if prof.file else None
+        files = [path] if path else []
+        line = prof.line()
+    return files + ([params_file] if params_file else []), line
+
+
+def _nodes(context):
     arg = LaunchConfiguration
-    common = [arg("params_file"), {"use_sim_time": arg("use_sim_time")}]
+    files, line = _parameter_files(context)
+    common = files + [{"use_sim_time": arg("use_sim_time")}]
     remaps = [("scan", arg("scan_topic")), ("odom", arg("odom_topic")), ("encoders", arg("encoders_topic")),
               ("fog", arg("fog_topic")), ("imu", arg("imu_topic"))]
     extra = {"bag_replay": [{"bag": arg("bag"), "scan_topic": arg("scan_topic")}]}
-    nodes = [Node(package="pf_slam_nodes", executable=name, name=name, output="screen",
-                  parameters=common + extra.get(name, []), remappings=remaps,
-                  condition=IfCondition(arg("texture")) if name == "texture" else None)
-             for name in NODES]
+    return [LogInfo(msg=line)] + [
+        Node(package="pf_slam_nodes", executable=name, name=name, output="screen",
+             parameters=common + extra.get(name, []), remappings=remaps,
+             condition=IfCondition(arg("texture")) if name == "texture" else None)
+        for name in NODES]
+
+
+def generate_launch_description():
     return LaunchDescription([
         DeclareLaunchArgument("bag", description="rosbag2 to replay (mcap or sqlite3)"),
-        DeclareLaunchArgument("params_file", default_value=os.path.join(share, "config", DEFAULT_PARAMS)),
+        DeclareLaunchArgument("profile", default_value="auto",
+                              description="auto (from the bag; indoor if it cannot be read), indoor, kaist, "
+                                          "mines, sim_indoor or none"),
+        DeclareLaunchArgument("params_file", default_value="",
+                              description="ROS 2 parameter YAML; the whole tuning unless profile:=NAME"),
         DeclareLaunchArgument("use_sim_time", default_value="true"),
         DeclareLaunchArgument("texture", default_value="false", description="run the stereo texture node"),
         DeclareLaunchArgument("scan_topic", default_value="/scan", description="sensor_msgs/LaserScan"),
@@ -40,5 +78,5 @@ def generate_launch_description():
         DeclareLaunchArgument("encoders_topic", default_value="/encoders", description="sensor_msgs/JointState"),
         DeclareLaunchArgument("fog_topic", default_value="/fog", description="FogBatch or Vector3Stamped"),
         DeclareLaunchArgument("imu_topic", default_value="/imu", description="sensor_msgs/Imu (fog_format: imu)"),
-        *nodes,
+        OpaqueFunction(function=_nodes),
     ])

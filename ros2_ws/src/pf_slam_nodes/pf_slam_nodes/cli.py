@@ -40,7 +40,11 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("run", help="replay a bag through the SLAM graph and write map/trajectory")
     r.add_argument("bag")
     r.add_argument("--out", required=True, help="output folder")
-    r.add_argument("--params", help="ROS 2 parameter YAML (see config/)")
+    r.add_argument("--params", help="ROS 2 parameter YAML (see config/), layered on top of the profile")
+    r.add_argument("--profile", default="auto", metavar="NAME",
+                   help="parameter profile: auto (default: from the bag's converter metadata, else its "
+                        "sensors, printed; none when --params is given), indoor (config/carmen_indoor.yaml), "
+                        "kaist, mines, sim_indoor (forced, also under --params), or none (the built-in defaults)")
     r.add_argument("--rate", default="max", help="'max' (lossless, paced on the pipeline), 1 (real time) or N")
     r.add_argument("--processes", choices=["single", "multi"], default="single",
                    help="one process with one executor, or one process per node over DDS")

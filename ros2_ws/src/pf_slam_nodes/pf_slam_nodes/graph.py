@@ -321,12 +321,13 @@ def inspect_stamps(bag: str, inputs: dict[str, str], max_scans: int = 200) -> di
     stream is used (its per-sample stamps are not rewritten): then only reported.
 
     Returns {"restamp": {topic: "record" | shift_ns}, "notes": {topic: why, with numbers},
-    "pairing": (scans with an odometry message of the same stamp, scans checked), "scan_frame"},
-    the pairing counted on the stamps as they will be replayed."""
+    "pairing": (scans with an odometry message of the same stamp, scans checked), "scan_frame",
+    "scan_range_max" (the first scan's)}, the pairing counted on the stamps as they will be replayed."""
     scan_topic = inputs["scan"]
     odom_topic = inputs["odom" if "odom" in inputs else "encoders"]
     rows: dict[str, list[tuple[int, int]]] = {scan_topic: [], odom_topic: []}
     scan_frame = None
+    scan_range_max = None
     try:
         for t, msgtype, rec, raw in read_bag(bag, topics=[scan_topic, odom_topic]):
             try:
@@ -336,6 +337,8 @@ def inspect_stamps(bag: str, inputs: dict[str, str], max_scans: int = 200) -> di
             rows[t].append((stamp_ns_of(msg), rec))
             if t == scan_topic:
                 scan_frame = msg.header.frame_id
+                if scan_range_max is None:
+                    scan_range_max = float(msg.range_max)
                 if len(rows[t]) >= max_scans:
                     break
     except BagReadError:
@@ -390,7 +393,8 @@ def inspect_stamps(bag: str, inputs: dict[str, str], max_scans: int = 200) -> di
     scans = replayed(scan_topic)
     odom = set(replayed(odom_topic).tolist())
     paired = int(sum(int(s) in odom for s in scans))
-    return {"restamp": restamp, "notes": notes, "pairing": (paired, len(scans)), "scan_frame": scan_frame}
+    return {"restamp": restamp, "notes": notes, "pairing": (paired, len(scans)), "scan_frame": scan_frame,
+            "scan_range_max": scan_range_max}
 
 
 def restamp_param(restamp: dict[str, Any]) -> str:
@@ -992,7 +996,8 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
         drain_timeout_s: float = 5.0,
         domain_id: int | None = None, executor: str = "events", texture: bool = True,
         texture_timeout_s: float = 120.0, record: bool = True,
-        record_map_every_s: float | None = None, input_topics: dict[str, str] | None = None) -> RunResult:
+        record_map_every_s: float | None = None, input_topics: dict[str, str] | None = None,
+        profile: str | None = None) -> RunResult:
     """Replay `bag` through the graph and write the outputs into `out_dir`; returns the summary.
 
     `record`: also write result.mcap (ResultRecorder), with a map every `record_map_every_s`
@@ -1000,8 +1005,14 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     ({'scan': '/front/scan', 'odom': ...}; also `topics.*` in the parameter file), see
     select_inputs(). `domain_id`: run on that ROS domain with the normal discovery (as does a set
     ROS_DOMAIN_ID), so viewers can watch; default: isolated (ros/domain.py: a free domain held
-    by the run, discovery OFF in one process, LOCALHOST for one process per node)."""
+    by the run, discovery OFF in one process, LOCALHOST for one process per node).
+    `profile`: the parameter profile (profiles.py): None / "auto" chooses it from the bag (its
+    converter metadata, else its sensors) when no `params_file` is given ("none" with one: the
+    file is the whole tuning, as before), "none" uses the built-in defaults, a name forces that
+    one (also under a `params_file`). Layers: defaults < profile < implied by the bag <
+    params_file < overrides."""
     import rclpy
+    from .profiles import Profile, ProfileError, choose_profile
 
     if processes not in ("single", "multi"):
         raise RunError(f"--processes must be 'single' or 'multi', got {processes!r}")
@@ -1016,8 +1027,24 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     mount = lidar_mount(bag, info, inputs, base_frame=user_mapper.get("base_frame"),
                         odom_frame=str(user_mapper.get("odom_frame", "odom")))
     stamps = inspect_stamps(bag, inputs)
-    layers = [detect_inputs(bag, info, inputs, mount=mount, stamps=stamps)]
-    mount_text, mount_notes = _mount_report(mount, layers[0], user, node_names)
+    try:
+        if params_file and profile in (None, "", "auto"):
+            # a parameter file is the whole tuning, as before profiles (its results do not
+            # change); --profile NAME layers one under it
+            prof = Profile("none", f"--params {params_file} is the whole tuning; --profile NAME layers one under it",
+                           None)
+        else:
+            prof = choose_profile(info.get("custom_data", {}), inputs, mount.planar,
+                                  tuple(math.degrees(v) for v in mount.rpy), stamps.get("scan_range_max"), profile)
+    except ProfileError as e:
+        raise RunError(str(e)) from None
+    prof_layer = load_params(prof.file) if prof.file else {}
+    params_topics(prof_layer)  # a profile names no topics (the bag's are chosen above)
+    detected = detect_inputs(bag, info, inputs, mount=mount, stamps=stamps)
+    mount_text, mount_notes = _mount_report(mount, detected, user, node_names)
+    # the profile tunes; what the bag says about itself (odometry source, pairing, gyro format,
+    # wheels, mount) wins over it; the user's file and flags win over both
+    layers = ([prof_layer] if prof_layer else []) + [detected]
     if file_layer:
         layers.append(file_layer)
     layers.append({"bag_replay": {"bag": str(bag), "rate": str(rate)},
@@ -1029,7 +1056,8 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     if overrides:
         layers.append(overrides)
     per_node = {n: node_params(layers, n) for n in node_names}
-    labels = [lambda sec: f"{bag} (implied by the bag)"]
+    labels = [lambda sec: f"profile {prof.name} ({prof.file}), section {sec!r}"] if prof_layer else []
+    labels.append(lambda sec: f"{bag} (implied by the bag)")
     if file_layer:
         labels.append(lambda sec: f"{params_file}, section {sec!r}")
     labels.append(lambda sec: "the command line")  # --rate (and what pf-slam run sets itself)
@@ -1057,6 +1085,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     scans_total = info["topics"][inputs["scan"]][1]
     remaps = topic_remaps(inputs)
     if progress:
+        print(prof.line() + (f"; --params {params_file} on top" if params_file and prof.file else ""), file=sys.stderr)
         print(input_report(str(bag), info, inputs, per_node["predictor"]) + f"\n  {mount_text}", file=sys.stderr)
     for note in mount_notes:
         print(f"[pf-slam] warning: {note}", file=sys.stderr)
@@ -1220,6 +1249,7 @@ def run(bag: str, out_dir: str | os.PathLike, params_file: str | None = None, ra
     if stage_split is not None:
         summary["stage_ms_per_scan"] = stage_split
     summary["inputs"] = inputs
+    summary["profile"] = prof.summary()
     summary["lidar_mount"] = {"used": mount_text, "warnings": mount_notes}
     summary["ros_domain"] = dom.summary()
     if result is not None:
@@ -1393,7 +1423,8 @@ def run_cli(args: Any, log: Callable[[str], None] = print) -> int:
               overrides=_cli_overrides(args), snapshot_every=args.snapshot_every, executor=args.executor,
               texture=not getattr(args, "no_texture", False), record=not getattr(args, "no_record", False),
               record_map_every_s=getattr(args, "record_map_every", None), domain_id=getattr(args, "domain", None),
-              input_topics={role: getattr(args, f"{role}_topic", None) for role in INPUT_TYPES})
+              input_topics={role: getattr(args, f"{role}_topic", None) for role in INPUT_TYPES},
+              profile=getattr(args, "profile", None))
     s = res.summary
     dropped = "?" if s["scans_dropped"] is None else s["scans_dropped"]
     log(f"{s['scans_processed']} scans ({s['scans_corrected']} corrected), {dropped} dropped, "

@@ -1,7 +1,8 @@
 """Accuracy and speed of the full graph on the CARMEN logs (the targets table of the README).
 
 For each log: convert it to a bag (cached), run the graph in `--rate max` with
-config/carmen_indoor.yaml (the parameter file for these logs), and evaluate against the
+no parameter file: what a user gets from `pf-slam run BAG` (the bag's converter metadata picks
+the indoor profile, config/carmen_indoor.yaml, the same for every log), and evaluate against the
 Kümmerle relations and/or GMapping's reference poses. Prints a markdown table and writes it
 (and the raw numbers as JSON) into the output folder.
 """
@@ -44,12 +45,13 @@ def bench(data_dir: Path, out_dir: Path, names=tuple(DATASETS), seeds=(0,), proc
         ceiling = replay_ceiling(str(bag))["real_time_factor"]
         for seed in seeds:
             run_dir = out_dir / f"{name}_seed{seed}_{processes}"
-            res = run(str(bag), run_dir, params_file=params_file or str(CARMEN_YAML), processes=processes,
+            res = run(str(bag), run_dir, params_file=params_file, processes=processes,
                       overrides={"/**": {"filter.seed": seed}}, progress=False, snapshot_every=0)
             ev = evaluate(run_dir / "trajectory.tum",
                           data_dir / "carmen" / ref if ref else None,
                           relations_path=data_dir / "carmen" / rel if rel else None, max_dt=1e-3)
             row = {"dataset": name, "seed": seed, "processes": processes, **res.summary,
+                   "profile": res.summary["profile"]["name"],
                    "ceiling_rtf": ceiling,
                    "ratio_to_ceiling": round(res.summary["real_time_factor"] / ceiling, 5)}
             if "relations" in ev:

@@ -30,6 +30,8 @@ The stamp of every message is its ``ipc_timestamp`` (the third field from the en
 
 Everything else
 ---------------
+* A gzip-compressed log (``.log.gz``) is read directly; a cut-off or damaged stream keeps the
+  lines before the damage (one warning, skipped ``"damaged gzip"``).
 * ``#`` lines are comments; empty lines are ignored.
 * Other message types (``PARAM``, ``SYNC``, ``RAWLASER1`` ...) are skipped and counted in
   ``CarmenLog.skipped`` under their type name, with one warning per type naming its first line.
@@ -50,8 +52,10 @@ Everything else
 
 from __future__ import annotations
 
+import gzip
 import math
 import os
+import zlib
 from dataclasses import dataclass, field
 from decimal import Decimal, InvalidOperation
 
@@ -278,7 +282,7 @@ def read_carmen(path: str | os.PathLike, no_return_m: float = 80.0) -> CarmenLog
     Parameters
     ----------
     path : str or PathLike
-        The ``.clf`` / ``.log`` file.
+        The ``.clf`` / ``.log`` file, plain or gzip-compressed (``.log.gz``).
     no_return_m : float
         Readings at or above this range (m) are "no return" and become ``+inf``.
 
@@ -295,8 +299,8 @@ def read_carmen(path: str | os.PathLike, no_return_m: float = 80.0) -> CarmenLog
     bad = SkipLog(log.skipped, log.warnings)
     unused: dict[str, int] = {}  # type -> first line
 
-    with open(path, encoding='utf-8', errors='replace') as fh:
-        for line_no, line in enumerate(fh, start=1):
+    with _open_text(path) as fh:
+        for line_no, line in _lines(fh, name, log):
             tok = line.split()
             if not tok or tok[0].startswith('#'):
                 continue
@@ -328,6 +332,30 @@ def read_carmen(path: str | os.PathLike, no_return_m: float = 80.0) -> CarmenLog
 
     _check_stamps(log, name)
     return log
+
+
+def _open_text(path: str | os.PathLike):
+    """The log as text lines: gzip-compressed (``.gz``, recognised by its magic bytes, whatever
+    the name) or plain."""
+    with open(path, 'rb') as fh:
+        magic = fh.read(2)
+    if magic == b'\x1f\x8b':
+        return gzip.open(path, 'rt', encoding='utf-8', errors='replace')
+    return open(path, encoding='utf-8', errors='replace')
+
+
+def _lines(fh, name: str, log: CarmenLog):
+    """(line number, line) of `fh`; a gzip stream that is cut off or damaged ends the log there:
+    the lines before it are kept, one warning names the last line read (skipped: "damaged gzip")."""
+    line_no = 0
+    try:
+        for line_no, line in enumerate(fh, start=1):
+            yield line_no, line
+    except (EOFError, OSError, zlib.error) as exc:
+        log.skipped['damaged gzip'] = log.skipped.get('damaged gzip', 0) + 1
+        log.warnings.append(f'{name}:{line_no + 1}: compressed stream damaged after line {line_no} '
+                            f'({type(exc).__name__}: {exc}); the {line_no} lines before it are read, '
+                            'the rest is lost')
 
 
 def _check_stamps(log: CarmenLog, name: str) -> None:

@@ -16,7 +16,7 @@ Topics written (frames in parentheses)
 --------------------------------------
 * ``/encoders`` ``sensor_msgs/JointState`` (``base_link``): ``['left_wheel', 'right_wheel']``
   cumulative wheel angles (rad) = count * 2 pi / resolution. Wheel geometry goes to the bag's
-  ``custom_data``: ``pf_slam.encoder_resolution``, ``pf_slam.left_wheel_diameter_m``,
+  ``custom_data``: ``pf_slam.format`` (``kaist``), ``pf_slam.encoder_resolution``, ``pf_slam.left_wheel_diameter_m``,
   ``pf_slam.right_wheel_diameter_m``, ``pf_slam.wheel_base_m``.
 * ``/fog`` (``fog``): ``pf_slam_interfaces/FogBatch`` of ``fog_batch`` consecutive samples
   (header stamp = the last sample's; the last batch may be shorter), or, with
@@ -520,6 +520,7 @@ def convert_kaist(dataset_dir: str | os.PathLike, out_bag: str | os.PathLike,
         for cam in cams:
             bag.add_connection(TOPIC_IMAGE[cam], 'sensor_msgs/msg/Image')
             bag.add_connection(TOPIC_CAMERA_INFO[cam], 'sensor_msgs/msg/CameraInfo')
+        bag.set_custom_data('pf_slam.format', 'kaist')  # pf-slam run: the kaist (car) profile
         bag.set_custom_data('pf_slam.source', f'kaist:{root.resolve().name}')
         bag.set_custom_data('pf_slam.encoder_resolution', str(enc['resolution']))
         bag.set_custom_data('pf_slam.left_wheel_diameter_m', repr(enc['left_wheel_diameter_m']))
