@@ -1,4 +1,4 @@
-"""The lidar's mount (issue 17.2) and the scan's own range limits (17.3), through the whole graph.
+"""The lidar's mount and the scan's own range limits, through the whole graph.
 
 Bags are simulated (sim/indoor.py, seed 0, the sample's 60 s drive) with the laser mounted
 as /tf_static says and its ranges cast from that mount; the trajectories are compared with

@@ -1,9 +1,10 @@
-"""Odometry/scan pairing never hangs (issue 17 item 5): a CARMEN log whose odometry comes in its
+"""Odometry/scan pairing never hangs: a CARMEN log whose odometry comes in its
 own ODOM lines, converted and run with the CARMEN parameter file, and the same bag with exact
 pairing forced, before the run (bag inspection) and at run time (no inspection: live use)."""
 from __future__ import annotations
 
 import math
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -122,7 +123,8 @@ def test_exact_without_partners_falls_back_at_run_time(bags, data_dir, tmp_path,
     s = res.summary
     assert s["complete"] and s["scans_processed"] == N, s.get("stopped_by")
     assert s["odom_sync"]["used"] == "exact" and s["faults"]["odom_sync_fallback"] == 1, s["faults"]
-    assert "pairing by interpolation from scan 0 on" in err, err
+    switch = re.search(r"pairing by interpolation from scan (\d+) on", err)
+    assert switch is not None and int(switch.group(1)) <= 5, err  # within the first few scans
     # the first scans (before the switch) had no partner: posed from the odometry around them
     assert s["faults"]["odom_missing"] <= 5
     assert _relations(tmp_path / "out", data_dir)["trans_mean"] < 0.05

@@ -1,4 +1,4 @@
-"""Timestamps that cannot be right (issue 17 item 6): scan and odometry stamps offset from each
+"""Timestamps that cannot be right: scan and odometry stamps offset from each
 other by seconds, header stamps that never advance, header stamps that are garbage. `pf-slam run`
 compares the header stamps with the bag's record times before the run, warns once with the
 numbers, replays the stream with what can be trusted (record time, or the offset removed), and

@@ -31,8 +31,8 @@ def _images(bag):
 
 
 def test_cached_bag_with_images_is_converted_again(tmp_path):
-    """A cached bag that carries stereo images would also run the texture node (session 5's
-    seeds 3-4): the bench converts the drive again without them, and reuses a clean one."""
+    """A cached bag that carries stereo images would also run the texture node (and slow the
+    bench): the bench converts the drive again without them, and reuses a clean one."""
     data = tmp_path / "drive"
     simulate_car(data, seed=1, duration_s=2.0, stereo_rate_hz=1.0)
     bag = tmp_path / "bag"

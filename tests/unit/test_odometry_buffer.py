@@ -81,7 +81,7 @@ def test_gyro_rest_bias_ignores_short_rests_but_zeroes_their_yaw():
         WheelOdometryIntegrator(0.5, 0.5, 1.5, gyro_rest_bias=True, rest_min_s=0.0)
 
 
-# ------------------------------------------------------------------ bad and missing odometry (issue 17)
+# ------------------------------------------------------------------ bad and missing odometry
 def _line(buf, stamps, bad=()):
     for t in stamps:
         buf.add(t, None if t in bad else np.array([t / 10.0, 0.0, 0.0]))
