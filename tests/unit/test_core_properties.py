@@ -6,6 +6,7 @@ Weights stay normalised and finite whatever the correlation scores (``-inf``, ``
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -109,15 +110,25 @@ grids = st.builds(_grid, st.sampled_from([0.05, 0.1, 0.37]), st.floats(0.01, 3.0
 @PROPS
 @given(grids, st.lists(scans(), min_size=1, max_size=6))
 def test_grid_stays_in_clip_bounds_and_inside(g, scan_list):
-    h, w = g.log_odds.shape
     for pose, r, a in scan_list:
+        h, w = g.log_odds.shape
         free, hit = g.trace_scan(pose, r, a)
         for idx in (free, hit):
             assert idx.dtype == np.int64
             assert ((idx >= 0) & (idx < h * w)).all()
+        before, off = g.log_odds.copy(), g.offset.copy()
         g.integrate_scan(pose, r, a)
         lo = g.log_odds
-        assert lo.shape == (h, w) and np.isfinite(lo).all()
+        h, w = lo.shape  # the grid may have grown by whole tiles: the old cells kept their place
+        dc, dr = g.offset - off
+        assert (h - before.shape[0]) % 256 == 0 and (w - before.shape[1]) % 256 == 0
+        kept = lo.copy()
+        kept.reshape(-1)[g.last_touched_idx] = np.nan  # cells this scan wrote
+        old = kept[dr:dr + before.shape[0], dc:dc + before.shape[1]]
+        same = np.isnan(old) | (old == before)
+        assert same.all()  # every other old cell is where and what it was
+        assert np.count_nonzero(np.nan_to_num(kept, nan=0.0)) == np.count_nonzero(np.nan_to_num(old, nan=0.0))
+        assert np.isfinite(lo).all()
         assert lo.min() >= np.float32(g.cfg.clip_min) and lo.max() <= np.float32(g.cfg.clip_max)
         if g.last_touched_bounds is not None:
             r0, r1, c0, c1 = g.last_touched_bounds
@@ -133,6 +144,7 @@ def test_grid_stays_in_clip_bounds_and_inside(g, scan_list):
 @PROPS
 @given(grids, scans())
 def test_scan_in_the_grid_writes_only_traced_cells(g, scan):
+    g = LogOddsGrid(dataclasses.replace(g.cfg, max_cells=0))  # fixed: trace_scan names the cells
     pose, r, a = scan
     pose[:2] = np.clip(pose[:2], [-2.0, -1.0], [1.99, 1.99])  # sensor inside the grid
     free, hit = g.trace_scan(pose, r, a)

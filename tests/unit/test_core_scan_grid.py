@@ -71,18 +71,21 @@ def test_hit_wins_over_free_in_same_scan_and_clipping():
 
 
 def test_no_write_outside_grid():
-    g = small_grid()
+    """A grid bounded at its initial size (max_cells) never writes beyond it, and counts what it
+    could not write."""
+    g = small_grid(max_cells=100)
     ang = np.linspace(-math.pi, math.pi, 73)
     g.integrate_scan(np.array([8.5, 8.5, 0.3]), np.full(73, 50.0), ang)  # rays leave the grid
     g.integrate_scan(np.array([-5.0, -5.0, 0.0]), np.array([200.0]), np.array([0.5]))  # sensor outside
     assert g.log_odds.shape == (10, 10)
     assert np.count_nonzero(g.log_odds) > 0
     big = LogOddsGrid(GridConfig(resolution_m=1.0, size_x_m=12, size_y_m=12, origin_x_m=-1.0, origin_y_m=-1.0,
-                                 range_max_usable_m=20.0, log_odds_hit=L4, log_odds_miss=-L4))
+                                 range_max_usable_m=20.0, log_odds_hit=L4, log_odds_miss=-L4, max_cells=144))
     big.integrate_scan(np.array([8.5, 8.5, 0.3]), np.full(73, 50.0), ang)
     # the 10x10 grid equals the interior of a larger grid: nothing was wrapped or clipped into it
     inner = big.log_odds[1:11, 1:11]
-    g1 = small_grid()
+    assert g.scans_beyond_bound == 2 and g.cells_beyond_bound > 0 and g.growths == 0
+    g1 = small_grid(max_cells=100)
     g1.integrate_scan(np.array([8.5, 8.5, 0.3]), np.full(73, 50.0), ang)
     np.testing.assert_array_equal(g1.log_odds, inner)
 

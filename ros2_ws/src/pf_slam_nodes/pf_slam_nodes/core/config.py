@@ -154,7 +154,8 @@ class GridConfig(_ConfigBase):
     resolution_m : float
         Cell edge length (m).
     size_x_m, size_y_m : float
-        Map extent along x (columns) and y (rows) (m).
+        Initial map extent along x (columns) and y (rows) (m). The grid grows by whole tiles
+        (``grid.TILE_CELLS``) wherever a scan reaches beyond it, up to ``max_cells``.
     origin_x_m, origin_y_m : float or None
         World position of the corner of cell (0, 0) (ROS ``map.info.origin``). ``None`` (both)
         centres the grid on the first pose.
@@ -166,6 +167,11 @@ class GridConfig(_ConfigBase):
         Log-odds clamp.
     range_max_usable_m : float
         Beams longer than this (or without return) mark free space up to this range, no hit.
+    max_cells : int
+        Bound on the grown grid (cells, rows x columns; the mapper's grid and the correlator's
+        likelihood field take ~19 bytes per cell together). A scan reaching beyond what this
+        allows is integrated only where it fits (counted: ``map_beyond_bound``). A value at or
+        below the initial size keeps the grid fixed.
     """
 
     resolution_m: float = 0.05
@@ -178,9 +184,11 @@ class GridConfig(_ConfigBase):
     clip_min: float = -5.0
     clip_max: float = 5.0
     range_max_usable_m: float = 20.0
+    max_cells: int = 100_000_000
 
     def __post_init__(self) -> None:
         _check_pos("resolution_m", self.resolution_m)
+        _check_int("max_cells", self.max_cells, 0)
         _check_pos("size_x_m", self.size_x_m)
         _check_pos("size_y_m", self.size_y_m)
         if (self.origin_x_m is None) != (self.origin_y_m is None):

@@ -196,7 +196,55 @@ class GridLikelihoodField(LikelihoodField):
                          cfg.sigma_m, cfg.max_distance_m, DEFAULT_PAD_CELLS)
         self.occupied_threshold = int(cfg.occupied_threshold)
         self.obstacles = np.zeros((height, width), dtype=bool)
+        self._anchor = self.origin.copy()  # the initial origin; cells keep their place on growth
+        self._offset = np.zeros(2, dtype=np.int64)
         self._r = int(math.ceil(self.max_distance_m / self.resolution)) + 1
+
+    def grow(self, add: tuple[int, int, int, int]) -> None:
+        """Add ``(top, bottom, left, right)`` obstacle-free rows / columns around the field
+        (whole tiles of the grid, :func:`~.grid.growth_plan`): the tables are copied into larger
+        ones, the new cells hold the clamp value, and the field is recomputed within ``R`` of the
+        obstacles near the old edges (their distances reach into the new cells), so it equals
+        the field of the whole obstacle mask computed at once."""
+        top, bottom, left, right = (int(v) for v in add)
+        if not (top or bottom or left or right):
+            return
+        h, w, p = self.height, self.width, self.pad
+        self.obstacles = np.pad(self.obstacles, ((top, bottom), (left, right)))
+        nh, nw = self.obstacles.shape
+
+        def table(old: np.ndarray) -> np.ndarray:  # padded: the border value is the clamp's
+            out = np.full((nh + 2 * p, nw + 2 * p), old[0, 0], dtype=old.dtype)
+            out[p + top:p + top + h, p + left:p + left + w] = old[p:p + h, p:p + w]
+            return out
+
+        self._dist, self._loglik, self._prob = table(self._dist), table(self._loglik), table(self._prob)
+        self._dist_flat = self._dist.reshape(-1)
+        self._loglik_flat = self._loglik.reshape(-1)
+        self._prob_flat = self._prob.reshape(-1)
+        self._wp = self._dist.shape[1]
+        self.height, self.width = nh, nw
+        self._offset = self._offset + np.array([left, top], np.int64)
+        self.origin = self._anchor - self.resolution * self._offset.astype(np.float64)
+        # obstacles within R of an old edge that now has cells beyond it
+        r = self._r
+        bands = []
+        if top:
+            bands.append((top, min(top + r, top + h), left, left + w))
+        if bottom:
+            bands.append((max(top + h - r, top), top + h, left, left + w))
+        if left:
+            bands.append((top, top + h, left, min(left + r, left + w)))
+        if right:
+            bands.append((top, top + h, max(left + w - r, left), left + w))
+        rr, cc = [], []
+        for a0, a1, b0, b1 in bands:
+            br, bc = np.nonzero(self.obstacles[a0:a1, b0:b1])
+            rr.append(br + a0)
+            cc.append(bc + b0)
+        rows, cols = np.concatenate(rr), np.concatenate(cc)
+        if rows.size:
+            self._recompute_cells(rows, cols)
 
     def set_obstacles(self, flat_idx: np.ndarray, is_obstacle: np.ndarray) -> int:
         """Set the obstacle state of cells and update the field around the changes.

@@ -21,6 +21,9 @@ from .motion import compose
 #: ``(row_min, row_max, col_min, col_max)``, half-open ``[min, max)``.
 Bounds = Tuple[int, int, int, int]
 
+# |sensor position| (cells from the initial grid) beyond which a scan is not traced
+_MAX_COORD = float(2 ** 40)
+
 
 def _world_to_cell(xy: np.ndarray, origin: np.ndarray, resolution: float) -> np.ndarray:
     xy = np.asarray(xy, dtype=np.float64)
@@ -109,6 +112,47 @@ def _occupancy_values(log_odds: np.ndarray) -> np.ndarray:
     return out
 
 
+#: Edge (cells) of the tiles a grid grows by.
+TILE_CELLS = 256
+
+
+def growth_plan(height: int, width: int, need: Bounds, max_cells: int,
+                tile: int = TILE_CELLS) -> Optional[tuple[int, int, int, int]]:
+    """Cells to add ``(top, bottom, left, right)`` (rows before row 0, rows after the last,
+    columns before column 0, after the last) so that the rectangle ``need`` = ``(row_min,
+    row_max, col_min, col_max)`` (half-open, in the grid's current cells) fits.
+
+    Each side that must grow grows by whole tiles and by at least a quarter of the grid's
+    extent on that axis (amortised: a grid grown over a path of length L is copied O(log L)
+    times per axis, so the mean cost per scan does not depend on the map's size). Where that
+    would exceed ``max_cells`` cells, only the tiles needed; where even those exceed it, no
+    growth (``(0, 0, 0, 0)``). None when ``need`` already fits.
+    """
+    r0, r1, c0, c1 = need
+    want = (max(0, -r0), max(0, r1 - height), max(0, -c0), max(0, c1 - width))
+    if not any(want):
+        return None
+
+    def tiles(n: int, floor: int) -> int:
+        return 0 if n <= 0 else tile * -(-max(n, floor) // tile)
+
+    for quarter in (True, False):
+        fh, fw = (height // 4, width // 4) if quarter else (0, 0)
+        add = (tiles(want[0], fh), tiles(want[1], fh), tiles(want[2], fw), tiles(want[3], fw))
+        if (height + add[0] + add[1]) * (width + add[2] + add[3]) <= max_cells:
+            return add
+    return (0, 0, 0, 0)
+
+
+def grow_array(a: np.ndarray, add: tuple[int, int, int, int], fill) -> np.ndarray:
+    """``a`` ``(H, W)`` inside a new ``(H + top + bottom, W + left + right)`` array of ``fill``."""
+    top, bottom, left, right = add
+    h, w = a.shape
+    out = np.full((h + top + bottom, w + left + right), fill, dtype=a.dtype)
+    out[top:top + h, left:left + w] = a
+    return out
+
+
 class LogOddsGrid:
     """One log-odds occupancy grid updated by ray tracing.
 
@@ -119,6 +163,12 @@ class LogOddsGrid:
         ``(2,)`` world point the grid is centred on when ``cfg.origin_x_m`` is None
         (the reference loop passes the first pose). Default ``(0, 0)``.
 
+    The grid starts at the configured size and grows by whole tiles (:data:`TILE_CELLS`,
+    :func:`growth_plan`) where :meth:`integrate_scan` reaches beyond it, up to ``cfg.max_cells``
+    cells. Cells keep their place in the world when it grows: the lattice is that of the
+    initial grid (``anchor``), and a point's cell is computed relative to it, so a grid that
+    never grows computes exactly what a fixed grid does.
+
     Attributes
     ----------
     log_odds : numpy.ndarray
@@ -126,15 +176,31 @@ class LogOddsGrid:
     resolution : float
     origin : numpy.ndarray
         ``(2,)`` float64 world ``(x, y)`` of the corner of cell (0, 0).
+    anchor : numpy.ndarray
+        ``(2,)`` the initial grid's origin; ``offset`` ``(2,)`` int64 ``[col, row]`` of the
+        initial grid's cell (0, 0) in the current grid.
     width, height : int
         Columns (x) and rows (y).
+    cells_beyond_bound : int
+        Traced cells not written because the grid could not grow that far (``max_cells``).
+    scans_beyond_bound : int
+        Scans that had such cells.
+    growths : int
+        Times the grid grew.
     """
 
     def __init__(self, cfg: GridConfig, center_xy: Optional[np.ndarray] = None) -> None:
         self.cfg = cfg
         self.resolution = float(cfg.resolution_m)
         self.height, self.width, self.origin = grid_geometry(cfg, center_xy)
+        self.anchor = self.origin.copy()
+        self.offset = np.zeros(2, dtype=np.int64)
         self.log_odds = np.zeros((self.height, self.width), dtype=np.float32)
+        self.cells_beyond_bound = 0
+        self.scans_beyond_bound = 0
+        self.growths = 0
+        #: ``(top, bottom, left, right)`` cells the last :meth:`integrate_scan` added, or None
+        self.last_growth: Optional[tuple[int, int, int, int]] = None
         self._touched: Optional[list[int]] = None  # [rmin, rmax, cmin, cmax) of written cells
         #: flat indices (row * width + col, may repeat) written by the last :meth:`integrate_scan`
         self.last_touched_idx = np.zeros(0, dtype=np.int64)
@@ -143,11 +209,30 @@ class LogOddsGrid:
     # ------------------------------------------------------------------ geometry
     def world_to_cell(self, xy: np.ndarray) -> np.ndarray:
         """World points ``(..., 2)`` (m) -> int64 cell indices ``(..., 2)`` as ``[col, row]``."""
-        return _world_to_cell(xy, self.origin, self.resolution)
+        return _world_to_cell(xy, self.anchor, self.resolution) + self.offset
 
     def cell_to_world(self, cells: np.ndarray) -> np.ndarray:
         """Cell indices ``(..., 2)`` ``[col, row]`` -> world ``(x, y)`` of the cell centres (m)."""
-        return self.origin + (np.asarray(cells, dtype=np.float64) + 0.5) * self.resolution
+        return self.anchor + (np.asarray(cells, dtype=np.float64) - self.offset + 0.5) * self.resolution
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the grid's array."""
+        return int(self.log_odds.nbytes)
+
+    def grow(self, add: tuple[int, int, int, int]) -> None:
+        """Add ``(top, bottom, left, right)`` unknown rows / columns around the grid."""
+        top, bottom, left, right = (int(v) for v in add)
+        if not (top or bottom or left or right):
+            return
+        self.log_odds = grow_array(self.log_odds, (top, bottom, left, right), 0.0)
+        self.height, self.width = self.log_odds.shape
+        self.offset = self.offset + np.array([left, top], dtype=np.int64)
+        self.origin = self.anchor - self.resolution * self.offset.astype(np.float64)
+        if self._touched is not None:
+            t = self._touched
+            self._touched = [t[0] + top, t[1] + top, t[2] + left, t[3] + left]
+        self.growths += 1
 
     def in_bounds(self, cells: np.ndarray) -> np.ndarray:
         """Bool ``(...)``: whether cell indices ``(..., 2)`` ``[col, row]`` lie in the grid."""
@@ -215,6 +300,10 @@ class LogOddsGrid:
         a = np.asarray(angles, dtype=np.float64).reshape(-1)
         if r.shape != a.shape:
             raise ValueError(f"ranges and angles must have the same length, got {r.shape} and {a.shape}")
+        return self._beams(pose, r, a, range_min_m, range_max_m, flat=True)
+
+    def _beams(self, pose: np.ndarray, r: np.ndarray, a: np.ndarray, range_min_m: float,
+               range_max_m: float, flat: bool):
         usable = float(self.cfg.range_max_usable_m)
         with np.errstate(invalid="ignore"):
             valid = ~np.isnan(r) & (r >= range_min_m) & (r > 0.0) & ((r <= range_max_m) | (r == np.inf))
@@ -222,14 +311,22 @@ class LogOddsGrid:
         r = np.where(is_hit, r, usable)[valid]
         a = a[valid]
         is_hit = is_hit[valid]
+        cells = self._trace_cells(pose, r, a, is_hit)
+        if not flat:
+            return cells
+        fx, fy, hx, hy = cells
+        return self._flat(fx, fy), self._flat(hx, hy)
+
+    def _trace_cells(self, pose: np.ndarray, r: np.ndarray, a: np.ndarray, is_hit: np.ndarray):
+        """Cells ``[col, row]`` of the lattice of the initial grid (not clipped to the grid) that
+        the valid beams traverse (``fx, fy``) and end in (``hx, hy``)."""
         res = self.resolution
-        # continuous cell coordinates of the sensor and the beam ends
-        sx = (pose[0] - self.origin[0]) / res
-        sy = (pose[1] - self.origin[1]) / res
-        reach = usable / res + 1.0  # no traced beam is longer than range_max_usable_m
-        if not (-reach <= sx <= self.width + reach and -reach <= sy <= self.height + reach):
-            empty = np.zeros(0, dtype=np.int64)  # NaN pose, or too far to touch the grid: the
-            return empty, empty  # int casts below would be undefined for such coordinates
+        # continuous cell coordinates (initial grid's lattice) of the sensor and the beam ends
+        sx = (pose[0] - self.anchor[0]) / res
+        sy = (pose[1] - self.anchor[1]) / res
+        if not (abs(sx) < _MAX_COORD and abs(sy) < _MAX_COORD):
+            empty = np.zeros(0, dtype=np.int64)  # NaN pose, or too far for any grid: the int
+            return empty, empty, empty, empty  # casts below would be undefined for such values
         ang = pose[2] + a
         ex = sx + r * np.cos(ang) / res
         ey = sy + r * np.sin(ang) / res
@@ -243,13 +340,16 @@ class LogOddsGrid:
         t = k / n[beam]
         fx = np.floor(sx + t * (ex[beam] - sx)).astype(np.int64)
         fy = np.floor(sy + t * (ey[beam] - sy)).astype(np.int64)
-        ok = (fx >= 0) & (fx < self.width) & (fy >= 0) & (fy < self.height)
-        free_idx = fy[ok] * self.width + fx[ok]
         hx = np.floor(ex[is_hit]).astype(np.int64)
         hy = np.floor(ey[is_hit]).astype(np.int64)
-        okh = (hx >= 0) & (hx < self.width) & (hy >= 0) & (hy < self.height)
-        hit_idx = hy[okh] * self.width + hx[okh]
-        return free_idx, hit_idx
+        return fx, fy, hx, hy
+
+    def _flat(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Flat indices of the lattice cells ``x, y`` inside the current grid (others dropped)."""
+        x = x + self.offset[0]
+        y = y + self.offset[1]
+        ok = (x >= 0) & (x < self.width) & (y >= 0) & (y < self.height)
+        return y[ok] * self.width + x[ok]
 
     def integrate_scan(
         self,
@@ -268,7 +368,28 @@ class LogOddsGrid:
         ``range_max_usable_m`` and no hit; finite beams beyond ``range_max_m`` are ignored. Values are clipped to ``[clip_min, clip_max]``; cells
         outside the grid are never written.
         """
-        free_idx, hit_idx = self.trace_scan(pose, ranges, angles, sensor_offset, range_min_m, range_max_m)
+        pose = np.asarray(pose, dtype=np.float64).reshape(3)
+        if sensor_offset is not None:
+            pose = compose(pose, np.asarray(sensor_offset, dtype=np.float64).reshape(3))
+        r = np.asarray(ranges, dtype=np.float64).reshape(-1)
+        a = np.asarray(angles, dtype=np.float64).reshape(-1)
+        if r.shape != a.shape:
+            raise ValueError(f"ranges and angles must have the same length, got {r.shape} and {a.shape}")
+        fx, fy, hx, hy = self._beams(pose, r, a, range_min_m, range_max_m, flat=False)
+        self.last_growth = None
+        if fx.size or hx.size:
+            xs = np.concatenate([fx, hx]) + self.offset[0]
+            ys = np.concatenate([fy, hy]) + self.offset[1]
+            need = (int(ys.min()), int(ys.max()) + 1, int(xs.min()), int(xs.max()) + 1)
+            add = growth_plan(self.height, self.width, need, int(self.cfg.max_cells))
+            if add is not None and any(add):
+                self.grow(add)
+                self.last_growth = add
+        free_idx, hit_idx = self._flat(fx, fy), self._flat(hx, hy)
+        dropped = fx.size + hx.size - free_idx.size - hit_idx.size
+        if dropped:
+            self.cells_beyond_bound += int(dropped)
+            self.scans_beyond_bound += 1
         flat = self.log_odds.reshape(-1)
         cfg = self.cfg
         hit_before = flat[hit_idx]
@@ -343,7 +464,8 @@ class LogOddsGrid:
         """World ``(x, y)`` of the corner of the first cell of ``bounds`` (m)."""
         if bounds is None:
             return self.origin.copy()
-        return self.origin + self.resolution * np.array([bounds[2], bounds[0]], dtype=np.float64)
+        return self.anchor + self.resolution * (np.array([bounds[2], bounds[0]], dtype=np.int64)
+                                                - self.offset).astype(np.float64)
 
     def to_occupancy_map(self, bounds: Optional[Bounds] = None) -> OccupancyMap:
         """The (cropped) grid as an :class:`OccupancyMap` (what a ROS subscriber would get)."""

@@ -25,7 +25,7 @@ from .config import (CorrelationConfig, FilterConfig, GridConfig, LaserConfig, O
                      ResampleConfig)
 from .correlation import GridLikelihoodField, correlate
 from .filter import n_eff, resample, update_log_weights
-from .grid import LogOddsGrid, grid_geometry
+from .grid import LogOddsGrid, grid_geometry, grow_array, growth_plan
 from .motion import relative_pose, sample_odometry_motion
 from .scan import planar_scan, scan_to_points, transform_points
 
@@ -154,8 +154,9 @@ class CorrectionStage:
     def apply_patch(self, patch: MapPatch) -> int:
         """Bring the likelihood field up to date with a map patch; returns the cells changed.
 
-        The field covers the grid the mapping stage builds around the first corrected pose.
-        Cells of the patch outside that grid are ignored.
+        The field starts as the grid the mapping stage builds around the first corrected pose
+        and grows by whole tiles to take in a patch beyond it (:func:`~.grid.growth_plan`, up to
+        ``grid.max_cells``); cells of a patch beyond that bound are ignored.
         """
         t0 = time.perf_counter()
         changed = self._apply_patch(patch)
@@ -171,6 +172,14 @@ class CorrectionStage:
         f = self.field
         occ = np.asarray(patch.occupancy)
         c0, r0 = np.rint((np.asarray(patch.origin, float) - f.origin) / f.resolution).astype(np.int64)
+        if occ.size:
+            add = growth_plan(f.height, f.width, (int(r0), int(r0) + occ.shape[0], int(c0), int(c0) + occ.shape[1]),
+                              int(self.grid_cfg.max_cells))
+            if add is not None and any(add):
+                f.grow(add)
+                if self.known is not None:
+                    self.known = grow_array(self.known, add, False)
+                r0, c0 = r0 + add[0], c0 + add[2]
         a0, a1 = max(int(r0), 0), min(int(r0) + occ.shape[0], f.height)  # the patch inside the grid
         b0, b1 = max(int(c0), 0), min(int(c0) + occ.shape[1], f.width)
         if a0 >= a1 or b0 >= b1:
@@ -269,6 +278,8 @@ class MappingStage:
         ranges, angles, offset = planar_scan(ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset,
                                              range_min, range_max)
         g.integrate_scan(pose, ranges, angles, offset, range_min, range_max)
+        if g.last_growth is not None:  # the grid grew by whole tiles: so does its occupancy
+            self._occ = grow_array(self._occ, g.last_growth, -1)
         self.pose = pose.copy()
         idx = g.last_touched_idx
         if idx.size == 0:

@@ -42,6 +42,10 @@ Everything else
   a line; it raises ``OSError`` only when the file cannot be read.
 * Ranges ``>= no_return_m`` (CARMEN writes 81.83 / 81.91 m for "no echo") become ``+inf``
   (REP 117). For ``ROBOTLASER1`` the threshold is ``min(max_range, no_return_m)``.
+* Loggers also say "no return" with other values (one log writes exactly 50.0 m): a single
+  exact range that is the largest of the log and occurs very often (:func:`infer_no_return`)
+  is taken as such a sentinel; its beams become ``+inf``, the scans' ``range_max`` that value,
+  and a warning says so with the count (``CarmenLog.sentinel_m`` / ``sentinel_count``).
 * Timestamps that repeat or step back (the Intel logs have both) are kept in file order; the
   number of such scans is in ``CarmenLog.stamp_repeats`` / ``stamp_steps_back`` and in one
   summary warning.
@@ -68,6 +72,7 @@ __all__ = [
     'CarmenOdom',
     'CarmenScan',
     'flaser_angles',
+    'infer_no_return',
     'read_carmen',
     'stamp_str_to_ns',
 ]
@@ -145,6 +150,9 @@ class CarmenLog:
     stamp_repeats: int = 0
     stamp_steps_back: int = 0
     path: str = ''
+    #: a "no return" value inferred from the data (:func:`infer_no_return`), or None
+    sentinel_m: float | None = None
+    sentinel_count: int = 0
 
 
 def flaser_angles(n_beams: int) -> tuple[float, float]:
@@ -276,7 +284,8 @@ def _parse_odom(tok: list[str], line_no: int) -> CarmenOdom:
                       rv=float(vals[4]), line_no=line_no, stamp_ns=stamp_ns)
 
 
-def read_carmen(path: str | os.PathLike, no_return_m: float = 80.0) -> CarmenLog:
+def read_carmen(path: str | os.PathLike, no_return_m: float = 80.0,
+                infer_sentinel: bool = True) -> CarmenLog:
     """Read a CARMEN log.
 
     Parameters
@@ -285,6 +294,8 @@ def read_carmen(path: str | os.PathLike, no_return_m: float = 80.0) -> CarmenLog
         The ``.clf`` / ``.log`` file, plain or gzip-compressed (``.log.gz``).
     no_return_m : float
         Readings at or above this range (m) are "no return" and become ``+inf``.
+    infer_sentinel : bool
+        Also take a "no return" value inferred from the data (:func:`infer_no_return`).
 
     Returns
     -------
@@ -331,6 +342,8 @@ def read_carmen(path: str | os.PathLike, no_return_m: float = 80.0) -> CarmenLog
                             f'{len(log.scans)} ROBOTLASER1 scans, skipped {n_fl} FLASER')
 
     _check_stamps(log, name)
+    if infer_sentinel:
+        _apply_sentinel(log, name)
     return log
 
 
@@ -356,6 +369,58 @@ def _lines(fh, name: str, log: CarmenLog):
         log.warnings.append(f'{name}:{line_no + 1}: compressed stream damaged after line {line_no} '
                             f'({type(exc).__name__}: {exc}); the {line_no} lines before it are read, '
                             'the rest is lost')
+
+
+#: a sentinel occurs at least this often (beams), and at least this fraction of the finite beams
+SENTINEL_MIN_COUNT = 50
+SENTINEL_MIN_FRACTION = 1e-3
+#: ... and this many times more often than any other exact value in its upper half
+SENTINEL_DOMINANCE = 5
+
+
+def infer_no_return(ranges: np.ndarray) -> tuple[float | None, int]:
+    """A "no return" sentinel in a log's ranges, inferred from the data.
+
+    The largest finite range ``v`` is a sentinel when it occurs exactly at least
+    ``SENTINEL_MIN_COUNT`` times and in ``SENTINEL_MIN_FRACTION`` of the finite beams, and
+    ``SENTINEL_DOMINANCE`` times more often than any other exact value in ``[v / 2, v)``: real
+    ranges are spread out, and a real longest return is rare, while a logger that writes its
+    range limit for "no echo" piles them all on one value (one held-out log: 50.0 m, 11 139
+    times). Returns ``(v, count)`` or ``(None, 0)``.
+    """
+    r = np.asarray(ranges, dtype=np.float32).reshape(-1)
+    r = r[np.isfinite(r)]
+    if r.size == 0:
+        return None, 0
+    v = r.max()
+    n = int(np.count_nonzero(r == v))
+    if n < SENTINEL_MIN_COUNT or n < SENTINEL_MIN_FRACTION * r.size:
+        return None, 0
+    upper = r[(r >= 0.5 * v) & (r < v)]
+    if upper.size:
+        other = int(np.unique(upper, return_counts=True)[1].max())
+        if n < SENTINEL_DOMINANCE * other:
+            return None, 0
+    return float(v), n
+
+
+def _apply_sentinel(log: CarmenLog, name: str) -> None:
+    if not log.scans:
+        return
+    v, n = infer_no_return(np.concatenate([s.ranges for s in log.scans]))
+    if v is None:
+        return
+    v32 = np.float32(v)
+    for s in log.scans:
+        hit = s.ranges == v32
+        if hit.any():
+            s.ranges = s.ranges.copy()
+            s.ranges[hit] = np.inf
+        s.range_max = min(float(s.range_max), v)
+    log.sentinel_m, log.sentinel_count = v, n
+    log.warnings.append(
+        f'{name}: {n} beams read exactly {v:g} m, the largest range of the log: taken as the '
+        f'logger\'s "no return" and written as +inf (REP 117), range_max {v:g} m')
 
 
 def _check_stamps(log: CarmenLog, name: str) -> None:

@@ -72,6 +72,9 @@ class ConvertReport:
     odom_sync: str = ''  # CARMEN: how the scans pair with the odometry (also in the bag's custom data)
     time_source: str = 'log'  # CARMEN: 'log', 'log, N by line order' or 'line order' (LogTimes)
     line_order: int = 0  # CARMEN: messages whose header stamp was taken from their line's place
+    #: CARMEN: a "no return" range inferred from the data (m) and its beams, written as +inf
+    sentinel_m: float | None = None
+    sentinel_count: int = 0
 
     @property
     def duration_s(self) -> float:
@@ -82,6 +85,10 @@ class ConvertReport:
         """Several human-readable lines for the CLI."""
         lines = [f'{self.source} -> {self.out_bag} ({self.storage}, {self.duration_s:.1f} s)']
         lines += [f'  {t}: {n}' for t, n in sorted(self.counts.items())]
+        if self.sentinel_m is not None:
+            lines.append(f'  no return: {self.sentinel_count} beams at exactly {self.sentinel_m:g} m (inferred '
+                         f'from the data: the log\'s largest range, far more frequent than any other) '
+                         f'written as +inf, range_max {self.sentinel_m:g} m')
         if self.skipped:
             lines.append(f'  skipped {sum(self.skipped.values())}: ' + ', '.join(
                 f'{k} {v}' for k, v in sorted(self.skipped.items())))
@@ -241,7 +248,8 @@ def convert_carmen(log_path: str | os.PathLike, out_bag: str | os.PathLike,
         why = f'; {log.warnings[0]}' if log.warnings else ''
         raise ValueError(f'{log_path}: no usable laser scan (skipped: {log.skipped}){why}')
     report = ConvertReport(source=str(log_path), out_bag=str(out_bag), storage=storage,
-                           skipped=dict(log.skipped), warnings=list(log.warnings))
+                           skipped=dict(log.skipped), warnings=list(log.warnings),
+                           sentinel_m=log.sentinel_m, sentinel_count=log.sentinel_count)
     name = os.path.basename(str(log_path))
     times = log_times(log.scans, log.odoms, name)
     report.warnings += times.warnings

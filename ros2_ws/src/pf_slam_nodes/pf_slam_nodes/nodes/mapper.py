@@ -64,7 +64,13 @@ class Mapper(Node):
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
         self.create_timer(period, self.publish_map)
-        status_publisher(self, lambda: {"faults": {"scans_lost_mapper": self.scans.lost}})
+        status_publisher(self, lambda: {"faults": {"scans_lost_mapper": self.scans.lost,
+                                                   "map_beyond_bound": self._beyond_bound()}})
+        self._warned_bound = False
+
+    def _beyond_bound(self) -> int:
+        """Scans with cells the grid could not grow to (grid.max_cells)."""
+        return 0 if self.stage.grid is None else int(self.stage.grid.scans_beyond_bound)
 
     def _on_scan(self, raw: bytes) -> None:
         self.scans.append(raw)
@@ -95,6 +101,13 @@ class Mapper(Node):
                 elif self.pub_tf_static is not None:
                     self._publish_sensor_tf(scan.header.frame_id, stamp)
                 patch = self.stage.integrate(pose, *scan_fields(scan))
+                g = self.stage.grid
+                if g.scans_beyond_bound and not self._warned_bound:
+                    self._warned_bound = True
+                    self.get_logger().warn(
+                        f"scan {pa.scan_index} reaches beyond what grid.max_cells ({g.cfg.max_cells}) lets the "
+                        f"map grow to ({g.height} x {g.width} cells): those cells are not mapped (counted: "
+                        "faults map_beyond_bound)")
                 self.pub_grid.publish(convert.grid_to_msg(patch.occupancy, patch.resolution,
                                                           patch.origin, stamp, self.map_frame))
             map_to_odom = compose(pose, relative_pose(np.asarray(pa.odom_pose), np.zeros(3)))
