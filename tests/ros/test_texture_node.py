@@ -17,8 +17,8 @@ from std_msgs.msg import String  # noqa: E402
 from tf2_msgs.msg import TFMessage  # noqa: E402
 
 from conftest import spin_until  # noqa: E402
-from pf_slam_nodes.io.calib import (matrix_to_quat, nearest_rotation, parse_extrinsic,  # noqa: E402
-                                    read_camera_yaml)
+from pf_slam_nodes.core.geometry import matrix_to_quat, nearest_rotation  # noqa: E402
+from pf_slam_nodes.io.calib import parse_extrinsic, read_camera_yaml  # noqa: E402
 from pf_slam_nodes.nodes.texture import TextureNode, image_array  # noqa: E402
 from pf_slam_nodes.ros import convert, qos  # noqa: E402
 

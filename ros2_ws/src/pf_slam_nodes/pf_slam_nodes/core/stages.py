@@ -26,7 +26,8 @@ from .config import (CorrelationConfig, FilterConfig, GridConfig, LaserConfig, O
 from .correlation import GridLikelihoodField, correlate
 from .filter import n_eff, resample, update_log_weights
 from .grid import LogOddsGrid, grid_geometry
-from .motion import relative_pose, sample_odometry_motion
+from .geometry import relative_pose
+from .motion import sample_odometry_motion
 from .scan import planar_scan, scan_to_points, transform_points
 
 MOTION_STREAM = 1
