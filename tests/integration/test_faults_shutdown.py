@@ -24,6 +24,7 @@ import pytest
 pytest.importorskip("rclpy")
 
 from pf_slam_nodes.core import metrics  # noqa: E402
+from pf_slam_nodes.io.evaluation import evaluate  # noqa: E402
 from pf_slam_nodes.graph import run  # noqa: E402
 from pf_slam_nodes.io.bag import TYPESTORE, bag_info, deserialize, make_time, open_writer, read_bag, stamp_ns_of  # noqa: E402
 from pf_slam_nodes.io.kaist import register_fog_batch  # noqa: E402
@@ -205,7 +206,7 @@ def test_encoder_counter_jump_is_discarded(tmp_path, ros_domain):
     s = res.summary
     assert s["complete"] and s["scans_processed"] == 400
     assert s["faults"]["encoder_jump"] == 1 and s["faults"]["odometry_nonfinite"] == 0
-    ev = metrics.evaluate(tmp_path / "out" / "trajectory.tum", ROOT / "bags" / "car_sample_ground_truth.csv")
+    ev = evaluate(tmp_path / "out" / "trajectory.tum", ROOT / "bags" / "car_sample_ground_truth.csv")
     assert ev["n_associated"] >= 395 and ev["ate"]["rmse"] < 0.3, ev["ate"]
 
 
@@ -231,7 +232,7 @@ def test_nan_encoders_and_fog_in_a_row_are_skipped(tmp_path, ros_domain):
     s = res.summary
     assert s["complete"] and s["scans_processed"] == 400, s.get("stopped_by")
     assert s["faults"]["odometry_nonfinite"] == len(bad_enc) + len(bad_fog), s["faults"]
-    ev = metrics.evaluate(tmp_path / "out" / "trajectory.tum", ROOT / "bags" / "car_sample_ground_truth.csv")
+    ev = evaluate(tmp_path / "out" / "trajectory.tum", ROOT / "bags" / "car_sample_ground_truth.csv")
     # measured: see the commit (the clean 400 scans: test_encoder_counter_jump_is_discarded's bound)
     assert ev["n_associated"] >= 395 and ev["ate"]["rmse"] < 0.3, ev["ate"]
 
@@ -367,5 +368,5 @@ def test_replay_faster_than_the_graph_counts_and_prints_drops(tmp_path, ros_doma
     # the nodes lose different scans; each set is matched to its own scan by stamp, or to none
     # (counted): measured ATE 0.031 m with 897 dropped (2.6 m when sets took the n-th scan to arrive)
     assert "scans_lost_correlator" in s["faults"] and "scans_lost_mapper" in s["faults"]
-    ev = metrics.evaluate(out / "trajectory.tum", ROOT / "bags" / "car_sample_ground_truth.csv")
+    ev = evaluate(out / "trajectory.tum", ROOT / "bags" / "car_sample_ground_truth.csv")
     assert ev["ate"]["rmse"] < 0.2, ev["ate"]

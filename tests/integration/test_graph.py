@@ -14,6 +14,7 @@ import pytest
 pytest.importorskip("rclpy")
 
 from pf_slam_nodes.core import metrics  # noqa: E402
+from pf_slam_nodes.io.evaluation import evaluate  # noqa: E402
 from pf_slam_nodes.core.config import GridConfig  # noqa: E402
 from pf_slam_nodes.core.grid import LogOddsGrid  # noqa: E402
 from pf_slam_nodes.graph import run  # noqa: E402
@@ -57,7 +58,7 @@ def test_sample_bag_pose_error_and_map(sample_run):
     s = res.summary
     assert s["scans_published"] == s["scans_processed"] == 600 and s["scans_dropped"] == 0
     assert s["complete"] and s["faults"]["scan_bad_ranges"] == 0 and not any(s["faults"].values())
-    ev = metrics.evaluate(out / "trajectory.tum", SAMPLE.parent / "ground_truth.tum")
+    ev = evaluate(out / "trajectory.tum", SAMPLE.parent / "ground_truth.tum")
     assert ev["n_associated"] == 600
     # the simulator's odometry drifts by >1 m; the filter must stay within centimetres
     assert ev["ate"]["rmse"] < 0.10, ev["ate"]
@@ -154,7 +155,7 @@ def test_graph_equals_reference_loop(sample_run):
     from pf_slam_nodes.core.odometry import OdometryBuffer
     from pf_slam_nodes.core.slam import ParticleFilterSlam
     from pf_slam_nodes.io.bag import deserialize, read_bag, stamp_ns_of
-    from pf_slam_nodes.io.trajectory import quat_to_yaw
+    from pf_slam_nodes.core.geometry import quat_to_yaw
 
     out, _ = sample_run
     slam = ParticleFilterSlam(cfg.FilterConfig(), cfg.OdometryMotionConfig(), cfg.GridConfig(),
@@ -190,7 +191,7 @@ def test_car_sample_encoders_fog_tilted_lidar(tmp_path, ros_domain):
     s = res.summary
     assert s["scans_published"] == s["scans_processed"] == 2000 and s["scans_dropped"] == 0
     assert s["particles"] == 100
-    ev = metrics.evaluate(tmp_path / "car" / "trajectory.tum", ROOT / "bags" / "car_sample_ground_truth.csv")
+    ev = evaluate(tmp_path / "car" / "trajectory.tum", ROOT / "bags" / "car_sample_ground_truth.csv")
     assert ev["n_associated"] >= 1990
     # measured 0.015 m over the 78 m drive with the FOG bias calibrated at the stops (0.079 m without,
     # dead reckoning 0.03 m on this short drive; see README)

@@ -15,7 +15,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from pf_slam_nodes.core import metrics  # noqa: E402
+from pf_slam_nodes.io.evaluation import evaluate  # noqa: E402
 from pf_slam_nodes.core.metrics import associate, wrap_angle  # noqa: E402
 from pf_slam_nodes.graph import run  # noqa: E402
 from pf_slam_nodes.io.bag import bag_info, deserialize, open_writer, read_bag, tf_static  # noqa: E402
@@ -75,7 +75,7 @@ def test_every_mount_is_applied(runs, name):
     # the views differ (a lidar looking backwards sees other walls): unaligned RMSE 0.04-0.35 m
     # (plain 0.078), ATE after alignment 0.015-0.087 m (plain 0.014) with the map turned < 0.5 deg
     assert err["pos_rmse"] < 0.5, (err, plain)
-    ev = metrics.evaluate(out / "trajectory.tum", sim.ground_truth_path)["ate"]
+    ev = evaluate(out / "trajectory.tum", sim.ground_truth_path)["ate"]
     assert ev["rmse"] < 0.1 and abs(math.degrees(ev["align_theta"])) < 1.0, ev
     used = s["lidar_mount"]["used"]
     assert used.startswith("lidar mount from /tf_static: base_link -> ") and not s["lidar_mount"]["warnings"]
@@ -216,7 +216,7 @@ def test_returns_beyond_range_max_are_neither_hits_nor_free_space(tmp_path, modu
     gt_map = SAMPLE.parent / "ground_truth_map.yaml"
     # (the sim's dropouts are +inf, traced as free space through the walls: ~1,300 cells in both)
     assert _known_outside_building(tmp_path / "b", gt_map) == _known_outside_building(tmp_path / "a", gt_map)
-    ev = metrics.evaluate(tmp_path / "b" / "trajectory.tum", SAMPLE.parent / "ground_truth.tum")["ate"]
+    ev = evaluate(tmp_path / "b" / "trajectory.tum", SAMPLE.parent / "ground_truth.tum")["ate"]
     assert ev["rmse"] < 0.05, ev
 
 

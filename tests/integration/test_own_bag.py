@@ -10,7 +10,7 @@ import pytest
 pytest.importorskip("rclpy")
 
 from pf_slam_nodes import cli  # noqa: E402
-from pf_slam_nodes.core import metrics  # noqa: E402
+from pf_slam_nodes.io.evaluation import evaluate  # noqa: E402
 from pf_slam_nodes.io.bag import bag_info, open_writer, read_bag  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -50,7 +50,7 @@ def test_own_bag_with_topic_flags(own_bag, tmp_path, ros_domain, capfd):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["inputs"] == {"scan": "/front/scan", "odom": "/wheel/odom"}
     assert summary["scans_processed"] == 600 and summary["scans_dropped"] == 0
-    ev = metrics.evaluate(out / "trajectory.tum", SAMPLE.parent / "ground_truth.tum")
+    ev = evaluate(out / "trajectory.tum", SAMPLE.parent / "ground_truth.tum")
     assert ev["n_associated"] == 600 and ev["ate"]["rmse"] < 0.10, ev["ate"]
     # result.mcap under the bag's own names; the laser mount from the parameters on /tf_static
     from pf_slam_nodes.io.bag import deserialize
@@ -129,7 +129,7 @@ def test_encoders_with_an_imu_gyro(tmp_path, ros_domain):
                   snapshot_every=0, record=False)
         assert res.summary["inputs"] == {"scan": "/scan", "encoders": "/encoders", "imu": "/imu/data"}
         assert res.summary["scans_processed"] == 2000
-        ev = metrics.evaluate(out / "trajectory.tum", ROOT / "bags" / "car_sample_ground_truth.csv")
+        ev = evaluate(out / "trajectory.tum", ROOT / "bags" / "car_sample_ground_truth.csv")
         assert ev["n_associated"] >= 1990
         ate[sign] = ev["ate"]["rmse"]
     assert ate[1.0] < 0.2 and ate[-1.0] > 1.0, ate

@@ -16,7 +16,7 @@ from pf_slam_nodes.core.motion import compose  # noqa: E402
 from pf_slam_nodes.graph import NODE_NAMES, _make_node, detect_inputs, load_params, node_params  # noqa: E402
 from pf_slam_nodes.io.bag import bag_info  # noqa: E402
 from pf_slam_nodes.io.mapfile import trinary  # noqa: E402
-from pf_slam_nodes.io.trajectory import quat_to_yaw  # noqa: E402
+from pf_slam_nodes.core.geometry import quat_to_yaw  # noqa: E402
 from pf_slam_nodes.nodes.common import announce_when_matched  # noqa: E402
 from pf_slam_nodes.ros import convert, qos  # noqa: E402
 

@@ -17,8 +17,8 @@ from std_msgs.msg import String  # noqa: E402
 from tf2_msgs.msg import TFMessage  # noqa: E402
 
 from conftest import spin_until  # noqa: E402
-from pf_slam_nodes.io.calib import (matrix_to_quat, nearest_rotation, parse_extrinsic,  # noqa: E402
-                                    read_camera_yaml)
+from pf_slam_nodes.core.geometry import matrix_to_quat, nearest_rotation  # noqa: E402
+from pf_slam_nodes.io.calib import parse_extrinsic, read_camera_yaml  # noqa: E402
 from pf_slam_nodes.nodes.texture import TextureNode, image_array  # noqa: E402
 from pf_slam_nodes.ros import convert, qos  # noqa: E402
 
@@ -93,13 +93,13 @@ class Feeder:
                    if k not in ("map", "map_metadata")) and \
             self.pub["map"].get_subscription_count() + self.pub["map_metadata"].get_subscription_count() > 0
 
-    def publish_static(self) -> None:
+    def publish_static(self, quat=None) -> None:
         tr = TransformStamped()
         tr.header.stamp = convert.ns_to_stamp(T0)
         tr.header.frame_id, tr.child_frame_id = "base_link", "stereo_left"
         tr.transform.translation.x, tr.transform.translation.y, tr.transform.translation.z = (
             float(v) for v in self.mount[1])
-        q = matrix_to_quat(self.mount[0])
+        q = matrix_to_quat(self.mount[0]) if quat is None else quat
         r = tr.transform.rotation
         r.x, r.y, r.z, r.w = q
         self.pub["tf"].publish(TFMessage(transforms=[tr]))
@@ -202,6 +202,32 @@ def test_flooded_pairs_are_skipped_not_queued(ros_context, kaist):
         img = node.publish_texture()
         assert img is not None and (img.width, img.height) == (MAP_W, MAP_H)
         assert spin_until(ex, lambda: bool(feed.status) and feed.status[-1]["frames_dropped"] == 1, 10)
+    finally:
+        ex.shutdown()
+        node.destroy_node()
+        feed.destroy()
+
+
+@pytest.mark.parametrize("bad", [(0.0, 0.0, 0.0, 0.0), (float("nan"), 0.0, 0.0, 1.0)])
+def test_mount_rotation_without_direction_is_ignored(ros_context, kaist, bad):
+    """A /tf_static rotation that is zero or not finite is no mount (it was taken as the identity
+    or NaN): no rig from it, and the next good transform gives the rig."""
+    ctx = ros_context
+    node = _make(ctx)
+    feed = Feeder(ctx, kaist)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    ex.add_node(feed.node)
+    try:
+        assert spin_until(ex, feed.matched, 10)
+        feed.publish_static(quat=bad)
+        assert spin_until(ex, lambda: len(node._infos) == 2, 10)
+        spin_until(ex, lambda: "stereo_left" in node._tf, 1.0)  # the transform has arrived by then
+        assert "stereo_left" not in node._tf and node.rig is None
+        feed.publish_static()
+        assert spin_until(ex, lambda: node.rig is not None, 10)
+        np.testing.assert_allclose(node.rig.R_vehicle_cam, feed.mount[0], atol=1e-9)
+        np.testing.assert_allclose(node.rig.t_vehicle_cam, feed.mount[1], atol=1e-12)
     finally:
         ex.shutdown()
         node.destroy_node()

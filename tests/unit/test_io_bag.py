@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader
 
+from pf_slam_nodes.core.geometry import yaw_to_quat
 from pf_slam_nodes.io.bag import (
     TYPESTORE, BagError, bag_info, clock, deserialize, joint_state_wheels, laser_scan,
-    make_header, odometry, open_writer, read_bag, stamp_ns_of, tf_static, yaw_to_quat)
+    make_header, odometry, open_writer, read_bag, stamp_ns_of, tf_static)
 
 
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])

@@ -11,6 +11,8 @@ import cv2
 import numpy as np
 import pytest
 
+from pf_slam_nodes.core import geometry
+from pf_slam_nodes.core.geometry import quat_to_matrix
 from pf_slam_nodes.io import calib
 from pf_slam_nodes.io.bag import (TYPESTORE, BagError, bag_info, deserialize, read_bag,
                                   stamp_ns_of)
@@ -24,13 +26,6 @@ PARAM = KAIST / 'param'
 needs_data = pytest.mark.skipif(not KAIST.is_dir(), reason=f'{KAIST} not available')
 
 T0 = 1544582648735466220  # a real-looking ns stamp: above 2**53, so float64 would round it
-
-
-def _quat_to_matrix(q) -> np.ndarray:
-    x, y, z, w = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
 # --------------------------------------------------------------------------------------------
@@ -53,8 +48,8 @@ def test_parse_real_extrinsics():
     assert rot_s[0, 2] == 0.99985 and rot_s[2, 1] == -0.999883
     # "XYZ extrinsic" RPY = Rz(yaw) Ry(pitch) Rx(roll) reproduces R to the file's rounding
     for r, a in ((rot, rpy), (rot_s, rpy_s)):
-        assert np.abs(calib.rpy_to_matrix(a) - r).max() < 2e-5
-        assert np.abs(calib.rpy_to_matrix(a) - r.T).max() > 0.5  # the transpose does not
+        assert np.abs(geometry.rpy_to_matrix(a) - r).max() < 2e-5
+        assert np.abs(geometry.rpy_to_matrix(a) - r.T).max() > 0.5  # the transpose does not
     # R maps camera vectors into the vehicle frame (x forward, y left, z up): the optical axis
     # (camera z) looks forward, image x (right) is the vehicle's -y, image y (down) is -z
     np.testing.assert_allclose(rot_s @ [0, 0, 1], [1, 0, 0], atol=0.02)
@@ -123,12 +118,12 @@ def test_matrix_to_quat_robust():
     q[:4] = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]  # 180 deg turns, identity
     q[4] = [1e-9, 0.6, 0.8, 0.0]
     for qi in q:
-        got = calib.matrix_to_quat(_quat_to_matrix(qi))
+        got = geometry.matrix_to_quat(quat_to_matrix(*qi))
         sign = 1.0 if np.dot(got, qi) >= 0 else -1.0
         np.testing.assert_allclose(got, sign * qi, atol=1e-9)
         assert got[3] >= 0.0
     with pytest.raises(ValueError):
-        calib.matrix_to_quat(np.full((3, 3), np.nan))
+        geometry.matrix_to_quat(np.full((3, 3), np.nan))
 
 
 @needs_data
@@ -143,9 +138,9 @@ def test_static_transforms_from_real_files():
         xyz, q = tfs[child]
         np.testing.assert_array_equal(xyz, t)
         # the file's R is rounded to 6 digits: the quaternion is that of the nearest rotation
-        np.testing.assert_allclose(_quat_to_matrix(q), rot, atol=2e-5)
+        np.testing.assert_allclose(quat_to_matrix(*q), rot, atol=2e-5)
         # and the same rotation as the RPY line's (both with w >= 0)
-        q_rpy = calib.matrix_to_quat(calib.rpy_to_matrix(rpy))
+        q_rpy = geometry.matrix_to_quat(geometry.rpy_to_matrix(rpy))
         np.testing.assert_allclose(q, q_rpy, atol=2e-5)
     np.testing.assert_allclose(tfs['lidar'][1], (0.670414, 0.669772, 0.225289, 0.226267),
                                atol=1e-6)
@@ -154,7 +149,7 @@ def test_static_transforms_from_real_files():
     rot_s, t_s, _ = calib.parse_extrinsic(PARAM / 'Vehicle2Stereo.txt')
     d = np.array(tfs['stereo_right'][0]) - t_s
     assert np.linalg.norm(d) == pytest.approx(0.475143600050775, abs=1e-12)
-    np.testing.assert_allclose(d, 0.475143600050775 * calib.nearest_rotation(rot_s)[:, 0],
+    np.testing.assert_allclose(d, 0.475143600050775 * geometry.nearest_rotation(rot_s)[:, 0],
                                atol=1e-12)
     np.testing.assert_allclose(d, 0.475143600050775 * rot_s[:, 0], atol=1e-5)
     assert d[1] < -0.47
@@ -401,7 +396,7 @@ def test_round_trip(tmp_path, storage):
                                                                           1.76416)
     rot, _, _ = calib.parse_extrinsic(PARAM / 'Vehicle2Lidar.txt')
     q = (lid.rotation.x, lid.rotation.y, lid.rotation.z, lid.rotation.w)
-    np.testing.assert_allclose(_quat_to_matrix(q), rot, atol=2e-6)
+    np.testing.assert_allclose(quat_to_matrix(*q), rot, atol=2e-6)
 
     with pytest.raises(BagError, match='refusing to overwrite'):
         convert_kaist(root, out, storage=storage)

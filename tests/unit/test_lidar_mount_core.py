@@ -15,7 +15,8 @@ from pf_slam_nodes.core.scan import gate_ranges, planar_scan, scan_to_points, tr
 from pf_slam_nodes.core.stages import MappingStage
 from pf_slam_nodes.graph import LidarMount, lidar_mount
 from pf_slam_nodes.io.bag import bag_info, laser_scan, open_writer, tf_static
-from pf_slam_nodes.sim.indoor import _rpy_quat, beam_angles, distance_to_segments, mount_pose, office_world, ray_cast
+from pf_slam_nodes.core.geometry import rpy_to_quat
+from pf_slam_nodes.sim.indoor import beam_angles, distance_to_segments, mount_pose, office_world, ray_cast
 
 PI = math.pi
 INC = math.radians(1.0)
@@ -110,7 +111,7 @@ def _bag(path, transforms, frame="laser", tf=None):
         if tf is not None:
             w.add_connection("/tf", "tf2_msgs/msg/TFMessage")
             w.write("/tf", 1, tf_static(1, [tf]))
-        w.write("/tf_static", 1, tf_static(1, [(p, c, xyz, _rpy_quat(rpy)) for p, c, xyz, rpy in transforms]))
+        w.write("/tf_static", 1, tf_static(1, [(p, c, xyz, rpy_to_quat(rpy)) for p, c, xyz, rpy in transforms]))
         w.write("/scan", 2, laser_scan(2, frame, -PI / 2, INC, np.ones(181), 0.1, 12.0))
     return str(path), bag_info(path)
 

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from pf_slam_nodes.core.metrics import (
-    RELATION_MAX_DT, align_se2, apply_se2, associate, ate, evaluate, format_evaluation,
+    RELATION_MAX_DT, align_se2, apply_se2, associate, ate, format_evaluation,
     relations_error, relative_se2, rpe)
+from pf_slam_nodes.io.evaluation import evaluate
 from pf_slam_nodes.io.carmen import read_carmen
 from pf_slam_nodes.io.trajectory import read_relations, read_trajectory, write_tum
 

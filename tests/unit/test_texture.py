@@ -13,8 +13,10 @@ cv2 = pytest.importorskip("cv2")
 from pf_slam_nodes.core.texture import (  # noqa: E402
     StereoRig, StereoTexturer, TextureConfig, TextureMap, colour_error, debayer,
     fit_ground_plane, interpolate_poses, measure_stereo_pair, north_up_bgr, overlay_occupancy,
-    read_floor_texture, road_region_mask)
-from pf_slam_nodes.io.calib import nearest_rotation, rpy_to_matrix  # noqa: E402
+    road_region_mask)
+from pf_slam_nodes.core.geometry import nearest_rotation, rpy_to_matrix  # noqa: E402
+from pf_slam_nodes.io.calib import read_stereo_rig  # noqa: E402
+from pf_slam_nodes.io.texture_files import read_floor_texture  # noqa: E402
 
 # A KAIST-like rectified rig (numbers of the real calibration, rounded)
 F, CX, CY, B = 775.37, 619.47, 257.18, 0.47515
@@ -237,7 +239,7 @@ def test_real_pair_road_plane_and_density(kaist):
     0.05 m of the calibrated 1.584 m (Vehicle2Stereo T_z: the car's load and pitch, the road's
     camber / crown over the lane (2 % over 1.75 m = 3.5 cm) and the matching (a 0.1 px
     disparity bias moves the plane ~1 cm) each move it by centimetres); tilt < 1 deg."""
-    rig = StereoRig.from_param_dir(kaist / "param")
+    rig = read_stereo_rig(kaist / "param")
     left = cv2.imread(str(kaist / "stereo" / "image_left.png"), cv2.IMREAD_UNCHANGED)
     right = cv2.imread(str(kaist / "stereo" / "image_right.png"), cv2.IMREAD_UNCHANGED)
     m = measure_stereo_pair(left, right, rig)

@@ -154,7 +154,8 @@ def _dispatch(args: argparse.Namespace) -> int:
         from .graph import run_cli
         return run_cli(args)
     if args.command == "eval":
-        from .core.metrics import evaluate, format_evaluation
+        from .core.metrics import format_evaluation
+        from .io.evaluation import evaluate
         if not args.gt and not args.relations and not args.map:
             raise ValueError("eval needs --est with --gt and/or --relations, or --map with --gt-map")
         if (args.gt or args.relations) and not args.est:

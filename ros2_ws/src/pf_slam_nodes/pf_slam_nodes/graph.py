@@ -27,6 +27,7 @@ from typing import Any, Callable
 import numpy as np
 import yaml
 
+from .core.geometry import quat_to_matrix
 from .io.bag import BagError, BagReadError, bag_info, check_run_inputs, deserialize, read_bag, stamp_ns_of
 from .io.mapfile import render_snapshot, write_map
 from .io.trajectory import write_tum
@@ -571,17 +572,6 @@ class LidarMount:
                 f"{angles} ({how})")
 
 
-def _quat_matrix(q) -> np.ndarray:
-    x, y, z, w = q.x, q.y, q.z, q.w
-    n = math.sqrt(x * x + y * y + z * z + w * w)
-    if not n > 0 or not math.isfinite(n):
-        raise ValueError(f"rotation quaternion ({x}, {y}, {z}, {w}) has no direction")
-    x, y, z, w = x / n, y / n, z / n, w / n
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
-
 def _tf_static_tree(bag: str, topics: dict) -> tuple[dict[str, tuple[str, np.ndarray, np.ndarray]], list[str]]:
     """Every /tf_static transform of the bag: child -> (parent, R, t) (a later message's
     transform of the same child replaces the earlier one, as tf2 does), and warnings."""
@@ -595,7 +585,8 @@ def _tf_static_tree(bag: str, topics: dict) -> tuple[dict[str, tuple[str, np.nda
                 tt = tr.transform.translation
                 t = np.array([tt.x, tt.y, tt.z], dtype=np.float64)
                 try:
-                    rot = _quat_matrix(tr.transform.rotation)
+                    q = tr.transform.rotation
+                    rot = quat_to_matrix(q.x, q.y, q.z, q.w)
                     if not np.isfinite(t).all():
                         raise ValueError(f"translation {t.tolist()} is not finite")
                 except ValueError as e:
@@ -1363,7 +1354,7 @@ def _write_texture(out: Path, rec: _Recorder, rendered, occ: np.ndarray, res: fl
                    origin) -> dict:
     """texture.png (+ texture_overlay.png with the occupancy when the geometries agree) and the
     texture node's counters for summary.json."""
-    from .core.texture import write_texture_pngs
+    from .io.texture_files import write_texture_pngs
     from .nodes.texture import image_array
     rgb = covered = None
     same_geometry = False

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..core.metrics import evaluate
+from ..io.evaluation import evaluate
 from ..graph import run
 from ..io.convert import convert_carmen
 from . import stage_table

@@ -34,10 +34,11 @@ from typing import Optional
 import cv2
 import numpy as np
 
-from ..core.texture import (StereoRig, StereoTexturer, TextureConfig, TextureMap, colour_error,
+from ..core.texture import (StereoTexturer, TextureConfig, TextureMap, colour_error,
                             interpolate_poses, measure_stereo_pair, north_up_bgr,
-                            overlay_occupancy, read_floor_texture,
-                            visible_ground_mask, write_texture_pngs)
+                            overlay_occupancy, visible_ground_mask)
+from ..io.calib import read_stereo_rig
+from ..io.texture_files import read_floor_texture, write_texture_pngs
 from ..io.trajectory import read_trajectory
 
 __all__ = ['SWEEP', 'main', 'measure_real_pair', 'sweep_real', 'sweep_sim_bias',
@@ -83,7 +84,7 @@ def texture_from_dataset(dataset_dir: str | Path, out_dir: str | Path | None = N
 
     root = Path(dataset_dir)
     cfg = cfg or TextureConfig()
-    rig = StereoRig.from_param_dir(root / 'param')
+    rig = read_stereo_rig(root / 'param')
     gt_dir = root / 'ground_truth'
     gt_rgb, gt_res, gt_origin = read_floor_texture(gt_dir / 'floor_texture.png')
     traj = Path(trajectory) if trajectory else gt_dir / 'poses.csv'
@@ -172,7 +173,7 @@ def measure_real_pair(kaist_dir: str | Path, out_dir: str | Path | None = None,
     """Disparity density on the road region and road plane of ``DIR/stereo/image_*.png``."""
     root = Path(kaist_dir)
     cfg = cfg or TextureConfig()
-    rig = StereoRig.from_param_dir(root / 'param')
+    rig = read_stereo_rig(root / 'param')
     left = cv2.imread(str(root / 'stereo' / 'image_left.png'), cv2.IMREAD_UNCHANGED)
     right = cv2.imread(str(root / 'stereo' / 'image_right.png'), cv2.IMREAD_UNCHANGED)
     if left is None or right is None:
@@ -243,7 +244,7 @@ def sweep_sim_bias(dataset_dir: str | Path, pairs: int = 6, log=print) -> list[d
     :data:`SWEEP` variant: median height (m) of the points within 0.3 m of the ground, by
     distance ahead of the camera, over ``pairs`` pairs from the middle of the drive."""
     root = Path(dataset_dir)
-    rig = StereoRig.from_param_dir(root / 'param')
+    rig = read_stereo_rig(root / 'param')
     stamps = _stereo_stamps(root)
     mid = max(len(stamps) // 2 - pairs // 2, 0)
     imgs = [(cv2.imread(str(root / 'stereo_images/stereo_left' / f'{s}.png'), cv2.IMREAD_UNCHANGED),

@@ -15,7 +15,7 @@ import numpy as np
 
 from .config import CorrelationConfig
 from .grid import OccupancyMap
-from .motion import wrap_angle
+from .geometry import wrap_angle
 
 #: Border (cells) of clamp value around the stored field; bounds the window search shift.
 DEFAULT_PAD_CELLS = 32

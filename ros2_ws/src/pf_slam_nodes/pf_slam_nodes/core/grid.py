@@ -16,7 +16,7 @@ from typing import Optional, Tuple
 import numpy as np
 
 from .config import GridConfig
-from .motion import compose
+from .geometry import compose
 
 #: ``(row_min, row_max, col_min, col_max)``, half-open ``[min, max)``.
 Bounds = Tuple[int, int, int, int]

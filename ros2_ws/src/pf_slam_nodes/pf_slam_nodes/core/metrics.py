@@ -16,11 +16,10 @@ Poses are ``(K, 3)`` ``[x, y, theta]`` arrays (m, m, rad); stamps are seconds (f
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 
-from .motion import relative_pose, wrap_angle
+from .geometry import relative_pose, wrap_angle
 
 __all__ = [
     'RELATION_MAX_DT',
@@ -28,12 +27,12 @@ __all__ = [
     'apply_se2',
     'associate',
     'ate',
-    'evaluate',
     'format_evaluation',
     'match_stamps',
     'relations_error',
     'relative_se2',
     'rpe',
+    'trajectory_errors',
     'wrap_angle',
 ]
 
@@ -58,7 +57,7 @@ def _poses(p: np.ndarray, name: str) -> np.ndarray:
 
 def relative_se2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``a^-1 * b`` for ``(K, 3)`` pose arrays: ``b`` expressed in the frame of ``a``
-    (:func:`~pf_slam_nodes.core.motion.relative_pose`, the motion model's)."""
+    (:func:`~pf_slam_nodes.core.geometry.relative_pose`, the motion model's)."""
     return relative_pose(a, b)
 
 
@@ -263,57 +262,20 @@ def relations_error(est_stamps: np.ndarray, est_poses: np.ndarray, rel_stamps: n
             'rot_sq_mean_deg': m(rot * rot, np.mean), 'n_used': n, 'n_total': int(len(rs))}
 
 
-def evaluate(est_path: str | os.PathLike | None, gt_path: str | os.PathLike | None = None,
-             relations_path: str | os.PathLike | None = None, max_dt: float = 0.02,
-             relations_max_dt: float = RELATION_MAX_DT, rpe_delta: int = 1,
-             map_path: str | os.PathLike | None = None, gt_map_path: str | os.PathLike | None = None,
-             map_tolerance_m: float = 0.3) -> dict:
-    """Evaluate a trajectory file against a reference trajectory and/or relations.
+def trajectory_errors(t_est: np.ndarray, p_est: np.ndarray, t_gt: np.ndarray, p_gt: np.ndarray,
+                      max_dt: float = 0.02, rpe_delta: int = 1) -> dict:
+    """ATE and RPE of an estimate against a reference trajectory, after the one-to-one
+    nearest-time association within ``max_dt`` (s).
 
-    ``est_path`` and ``gt_path`` are TUM or ``t x y theta`` files; a ``gt_path`` ending in
-    ``.relations`` is taken as ``relations_path``. ATE/RPE use the one-to-one nearest-time
-    association within ``max_dt`` (s); the relations error uses ``relations_max_dt``.
-
-    Returns
-    -------
-    dict
-        ``est`` (path), ``n_est``; with a reference: ``gt``, ``n_gt``, ``n_associated``,
-        ``ate`` (see ``ate``), ``rpe`` (see ``rpe``); with relations: ``relations_file``,
-        ``relations`` (see ``relations_error``).
+    Returns ``n_gt``, ``n_associated``, ``max_dt`` and, when a pose could be associated,
+    ``ate`` (see :func:`ate`) and ``rpe`` (see :func:`rpe`).
     """
-    # File reading lives in io/; imported here so that the rest of core/ stays numpy-only.
-    from pf_slam_nodes.io.trajectory import read_relations, read_trajectory
-
-    if gt_path is not None and str(gt_path).endswith('.relations') and relations_path is None:
-        gt_path, relations_path = None, gt_path
-    if (map_path is None) != (gt_map_path is None):
-        raise ValueError('a map evaluation needs both the map and the ground-truth map (yaml)')
-    if gt_path is None and relations_path is None and map_path is None:
-        raise ValueError('evaluate needs a reference trajectory (gt_path), relations_path or a map pair')
-    out: dict = {}
-    if map_path is not None:
-        from pf_slam_nodes.io.mapfile import read_map
-        eo, er, eorig = read_map(map_path)
-        go, gr, gorig = read_map(gt_map_path)
-        out.update(map_est=str(map_path), map_gt=str(gt_map_path),
-                   map=map_f1(eo, er, eorig[:2], go, gr, gorig[:2], tolerance_m=map_tolerance_m))
-    if est_path is None:
-        return out
-    t_est, p_est = read_trajectory(est_path)
-    out.update(est=str(est_path), n_est=int(len(t_est)))
-    if gt_path is not None:
-        t_gt, p_gt = read_trajectory(gt_path)
-        pairs = associate(t_est, t_gt, max_dt=max_dt)
-        out.update(gt=str(gt_path), n_gt=int(len(t_gt)), n_associated=int(len(pairs)),
-                   max_dt=float(max_dt))
-        if len(pairs):
-            e, g = p_est[pairs[:, 0]], p_gt[pairs[:, 1]]
-            out['ate'] = ate(e, g)
-            out['rpe'] = rpe(e, g, delta=rpe_delta)
-    if relations_path is not None:
-        rs, rd = read_relations(relations_path)
-        out['relations_file'] = str(relations_path)
-        out['relations'] = relations_error(t_est, p_est, rs, rd, max_dt=relations_max_dt)
+    pairs = associate(t_est, t_gt, max_dt=max_dt)
+    out: dict = dict(n_gt=int(len(t_gt)), n_associated=int(len(pairs)), max_dt=float(max_dt))
+    if len(pairs):
+        e, g = p_est[pairs[:, 0]], p_gt[pairs[:, 1]]
+        out['ate'] = ate(e, g)
+        out['rpe'] = rpe(e, g, delta=rpe_delta)
     return out
 
 
@@ -380,7 +342,7 @@ def map_f1(est_occ: np.ndarray, est_res: float, est_origin, gt_occ: np.ndarray, 
 
 
 def format_evaluation(res: dict) -> str:
-    """Human-readable lines for ``pf-slam eval``."""
+    """Human-readable lines for ``pf-slam eval`` (of :func:`pf_slam_nodes.io.evaluation.evaluate`)."""
     lines = [f"estimate: {res['est']} ({res['n_est']} poses)"] if 'est' in res else []
     if 'gt' in res:
         lines.append(f"reference: {res['gt']} ({res['n_gt']} poses), associated "

@@ -1,4 +1,4 @@
-"""SE(2) pose algebra and motion models (prediction step).
+"""Motion models (prediction step); the SE(2) pose algebra they use is :mod:`.geometry`.
 
 Poses are float64 ``[x, y, theta]`` (m, m, rad), single ``(3,)`` or batched ``(N, 3)``.
 Angles returned by these functions are wrapped to ``[-pi, pi)``.
@@ -11,85 +11,8 @@ import math
 import numpy as np
 
 from .config import DiffDriveConfig, OdometryMotionConfig
-
-
-def wrap_angle(a: np.ndarray | float) -> np.ndarray:
-    """Wrap angle(s) to ``[-pi, pi)``.
-
-    Parameters
-    ----------
-    a : array_like
-        Angles (rad), any shape.
-
-    Returns
-    -------
-    numpy.ndarray
-        Wrapped angles, same shape, float64.
-    """
-    a = np.asarray(a, dtype=np.float64)
-    return (a + np.pi) % (2.0 * np.pi) - np.pi
-
-
-def _wrap(a: float) -> float:
-    """:func:`wrap_angle` of one Python float (same formula, no array)."""
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
-
-
-def relative_pose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Pose ``b`` expressed in the frame of pose ``a`` (``a^-1 (+) b``, the odometry increment).
-
-    Parameters
-    ----------
-    a, b : numpy.ndarray
-        ``(3,)`` or ``(N, 3)`` poses, broadcast against each other.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``(3,)`` or ``(N, 3)`` float64 relative pose(s).
-    """
-    a = np.asarray(a, dtype=np.float64)
-    b = np.asarray(b, dtype=np.float64)
-    if a.shape == b.shape == (3,):  # one pose: scalar math (the per-scan path of the nodes)
-        ax, ay, at = a.tolist()
-        dx, dy = b[0] - ax, b[1] - ay
-        c, s = math.cos(at), math.sin(at)
-        return np.array([c * dx + s * dy, -s * dx + c * dy, _wrap(float(b[2]) - at)])
-    dx = b[..., 0] - a[..., 0]
-    dy = b[..., 1] - a[..., 1]
-    c = np.cos(a[..., 2])
-    s = np.sin(a[..., 2])
-    return np.stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(b[..., 2] - a[..., 2])], axis=-1)
-
-
-def compose(poses: np.ndarray, delta: np.ndarray) -> np.ndarray:
-    """Pose composition ``poses (+) delta`` (``delta`` expressed in the frame of ``poses``).
-
-    Parameters
-    ----------
-    poses : numpy.ndarray
-        ``(3,)`` or ``(N, 3)``.
-    delta : numpy.ndarray
-        ``(3,)`` or ``(N, 3)``; broadcast against ``poses``.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``(3,)`` or ``(N, 3)`` float64.
-    """
-    poses = np.asarray(poses, dtype=np.float64)
-    delta = np.asarray(delta, dtype=np.float64)
-    if poses.shape == delta.shape == (3,):  # one pose: scalar math (the per-scan path of the nodes)
-        px, py, pt = poses.tolist()
-        dx, dy, dt = delta.tolist()
-        c, s = math.cos(pt), math.sin(pt)
-        return np.array([px + c * dx - s * dy, py + s * dx + c * dy, _wrap(pt + dt)])
-    c = np.cos(poses[..., 2])
-    s = np.sin(poses[..., 2])
-    x = poses[..., 0] + c * delta[..., 0] - s * delta[..., 1]
-    y = poses[..., 1] + s * delta[..., 0] + c * delta[..., 1]
-    th = wrap_angle(poses[..., 2] + delta[..., 2])
-    return np.stack(np.broadcast_arrays(x, y, th), axis=-1)
+# the SE(2) pose algebra lives in geometry.py; re-exported here, where the motion models use it
+from .geometry import _wrap, compose, relative_pose, wrap_angle  # noqa: F401
 
 
 def sample_odometry_motion(

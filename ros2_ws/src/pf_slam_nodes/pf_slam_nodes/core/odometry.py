@@ -10,7 +10,8 @@ from typing import Optional
 
 import numpy as np
 
-from .motion import integrate_diff_drive, wheel_odometry, wrap_angle
+from .geometry import wrap_angle
+from .motion import integrate_diff_drive, wheel_odometry
 
 
 class OdometryBuffer:

@@ -17,7 +17,7 @@ from .config import (CorrelationConfig, FilterConfig, GridConfig, LaserConfig, O
                      ResampleConfig)
 from .correlation import GridLikelihoodField
 from .grid import LogOddsGrid
-from .motion import compose
+from .geometry import compose
 from .stages import CorrectionStage, MappingStage, PredictionStage, STAGE_STEPS, stage_seconds
 
 STAGES = STAGE_STEPS

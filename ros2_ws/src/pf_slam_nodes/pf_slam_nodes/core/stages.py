@@ -25,8 +25,9 @@ from .config import (CorrelationConfig, FilterConfig, GridConfig, LaserConfig, O
                      ResampleConfig)
 from .correlation import GridLikelihoodField, correlate
 from .filter import n_eff, resample, update_log_weights
+from .geometry import relative_pose
 from .grid import LogOddsGrid, grid_geometry, grow_array, growth_plan
-from .motion import relative_pose, sample_odometry_motion
+from .motion import sample_odometry_motion
 from .scan import planar_scan, scan_to_points, transform_points
 
 MOTION_STREAM = 1

@@ -40,6 +40,8 @@ from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.rosbag2.errors import ReaderError, WriterError
 from rosbags.typesys import Stores, get_typestore
 
+from ..core.geometry import yaw_to_quat
+
 __all__ = [
     'BagError',
     'BagReadError',
@@ -61,7 +63,6 @@ __all__ = [
     'read_bag',
     'stamp_ns_of',
     'tf_static',
-    'yaw_to_quat',
 ]
 
 #: The ROS 2 Jazzy message definitions used for every message written or read here.
@@ -377,11 +378,6 @@ def stamp_ns_of(msg: Any) -> int:
 def make_header(stamp_ns: int, frame_id: str) -> Any:
     """``std_msgs/Header``."""
     return Header(stamp=make_time(stamp_ns), frame_id=str(frame_id))
-
-
-def yaw_to_quat(yaw: float) -> tuple[float, float, float, float]:
-    """Rotation about z -> quaternion ``(x, y, z, w)``."""
-    return 0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw)
 
 
 def laser_scan(stamp_ns: int, frame_id: str, angle_min: float, angle_increment: float,

@@ -1,4 +1,7 @@
-"""Calibration files of the KAIST Urban car data set (``DIR/param/``), and rotation helpers.
+"""Calibration files of the KAIST Urban car data set (``DIR/param/``).
+
+The rotation helpers (``rpy_to_matrix``, ``nearest_rotation``, ``matrix_to_quat``) are in
+:mod:`pf_slam_nodes.core.geometry`.
 
 Text files (``key: values`` lines; other lines ignored):
 
@@ -21,22 +24,25 @@ value is absent or malformed.
 
 from __future__ import annotations
 
-import math
 import os
 import re
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..core.geometry import nearest_rotation
+
+if TYPE_CHECKING:
+    from ..core.texture import StereoRig
+
 __all__ = [
-    'matrix_to_quat',
-    'nearest_rotation',
     'parse_encoder_params',
     'parse_extrinsic',
     'parse_lidar_params',
     'parse_stereo_baseline',
     'read_camera_yaml',
-    'rpy_to_matrix',
+    'read_stereo_rig',
 ]
 
 #: Largest ``|R R^T - I|`` accepted for a rotation matrix read from a file.
@@ -81,64 +87,6 @@ def _numbers(path: str | os.PathLike, kv: dict[str, str], key: str, n: int | Non
 def _unit(kv: dict[str, str], key: str) -> str | None:
     m = re.search(r'\(([^)]*)\)', kv.get(key, ''))
     return m.group(1).strip().lower() if m else None
-
-
-def rpy_to_matrix(rpy_deg: np.ndarray | list[float]) -> np.ndarray:
-    """Roll, pitch, yaw (deg, "XYZ extrinsic") -> ``Rz(yaw) @ Ry(pitch) @ Rx(roll)``, (3, 3)."""
-    r, p, y = np.radians(np.asarray(rpy_deg, dtype=np.float64))
-    cr, sr = math.cos(r), math.sin(r)
-    cp, sp = math.cos(p), math.sin(p)
-    cy, sy = math.cos(y), math.sin(y)
-    rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
-    ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
-    rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
-    return rz @ ry @ rx
-
-
-def nearest_rotation(rot: np.ndarray) -> np.ndarray:
-    """The rotation matrix closest (Frobenius) to ``rot`` (3, 3): ``U @ V^T`` of its SVD.
-
-    Calibration files round R to ~6 digits, so its columns are unit vectors only to ~1e-5.
-    """
-    u, _, vt = np.linalg.svd(np.asarray(rot, dtype=np.float64))
-    if np.linalg.det(u @ vt) < 0.0:
-        u[:, -1] = -u[:, -1]
-    return u @ vt
-
-
-def matrix_to_quat(rot: np.ndarray) -> tuple[float, float, float, float]:
-    """Rotation matrix (3, 3) -> unit quaternion ``(x, y, z, w)`` with ``w >= 0``.
-
-    Shepperd's method: the largest of ``w, x, y, z`` is taken from the diagonal (no division by
-    a small number, exact for 180-degree rotations). A slightly non-orthonormal input (a
-    rounded calibration file) gives the quaternion of a nearby rotation, normalised.
-    """
-    m = np.asarray(rot, dtype=np.float64)
-    if m.shape != (3, 3) or not np.all(np.isfinite(m)):
-        raise ValueError(f'rotation must be a finite (3, 3) matrix, got {m!r}')
-    tr = m[0, 0] + m[1, 1] + m[2, 2]
-    cand = (tr, m[0, 0], m[1, 1], m[2, 2])
-    k = int(np.argmax(cand))
-    if k == 0:
-        s = 2.0 * math.sqrt(max(1.0 + tr, 0.0))
-        q = ((m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s)
-    elif k == 1:
-        s = 2.0 * math.sqrt(max(1.0 + m[0, 0] - m[1, 1] - m[2, 2], 0.0))
-        q = (0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s)
-    elif k == 2:
-        s = 2.0 * math.sqrt(max(1.0 + m[1, 1] - m[0, 0] - m[2, 2], 0.0))
-        q = ((m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s)
-    else:
-        s = 2.0 * math.sqrt(max(1.0 + m[2, 2] - m[0, 0] - m[1, 1], 0.0))
-        q = ((m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s, (m[1, 0] - m[0, 1]) / s)
-    qa = np.array(q, dtype=np.float64)
-    norm = float(np.linalg.norm(qa))
-    if not norm > 0.0:
-        raise ValueError(f'not a rotation matrix: {m!r}')
-    qa /= norm
-    if qa[3] < 0.0:
-        qa = -qa
-    return float(qa[0]), float(qa[1]), float(qa[2]), float(qa[3])
 
 
 def parse_extrinsic(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -285,3 +233,16 @@ def read_camera_yaml(path: str | os.PathLike) -> dict:
         }
     finally:
         fs.release()
+
+
+def read_stereo_rig(param_dir: str | os.PathLike) -> StereoRig:
+    """The stereo rig of the KAIST layout's ``param/``: ``left_camera.yaml``,
+    ``right_camera.yaml``, ``Vehicle2Stereo.txt`` (raises ``ValueError`` naming a missing / bad
+    file); the mounting rotation is made orthonormal (:func:`nearest_rotation`)."""
+    from ..core.texture import StereoRig  # local: the texture core pulls in OpenCV
+
+    d = Path(param_dir)
+    left = read_camera_yaml(d / 'left_camera.yaml')
+    right = read_camera_yaml(d / 'right_camera.yaml')
+    rot, t, _ = parse_extrinsic(d / 'Vehicle2Stereo.txt')
+    return StereoRig(int(left['width']), int(left['height']), left, right, nearest_rotation(rot), t)

@@ -35,7 +35,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .bag import joint_state_wheels, laser_scan, odometry, open_writer, tf_static, yaw_to_quat
+from ..core.geometry import yaw_to_quat
+from .bag import joint_state_wheels, laser_scan, odometry, open_writer, tf_static
 from .carmen import read_carmen
 from .mines import read_mines
 

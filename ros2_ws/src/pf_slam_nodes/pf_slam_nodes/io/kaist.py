@@ -68,6 +68,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.geometry import matrix_to_quat, nearest_rotation, rpy_to_matrix
 from . import calib
 from .bag import TYPESTORE, BagWriter, camera_info, image, joint_state_wheels, laser_scan
 from .bag import make_header, open_writer, tf_static
@@ -216,12 +217,12 @@ def kaist_static_transforms(param_dir: str | os.PathLike,
     for fname, frame in (('Vehicle2Lidar.txt', FRAME_LIDAR), ('Vehicle2FOG.txt', FRAME_FOG),
                          ('Vehicle2Stereo.txt', FRAME_CAMERA['left'])):
         rot, t, rpy = calib.parse_extrinsic(p / fname)
-        err = float(np.abs(calib.rpy_to_matrix(rpy) - rot).max())
+        err = float(np.abs(rpy_to_matrix(rpy) - rot).max())
         if err > RPY_TOL and warnings is not None:
             warnings.append(f'{p / fname}: RPY {rpy.tolist()} disagrees with R by {err:.3g} '
                             '(R used)')
-        rot = calib.nearest_rotation(rot)  # the file rounds R to ~6 digits
-        out.append((BASE_FRAME, frame, tuple(t.tolist()), calib.matrix_to_quat(rot)))
+        rot = nearest_rotation(rot)  # the file rounds R to ~6 digits
+        out.append((BASE_FRAME, frame, tuple(t.tolist()), matrix_to_quat(rot)))
         if frame == FRAME_CAMERA['left']:
             left = (rot, t)
     assert left is not None
@@ -229,7 +230,7 @@ def kaist_static_transforms(param_dir: str | os.PathLike,
     rot, t = left
     t_right = t + rot @ np.array([baseline, 0.0, 0.0])
     out.append((BASE_FRAME, FRAME_CAMERA['right'], tuple(t_right.tolist()),
-                calib.matrix_to_quat(rot)))
+                matrix_to_quat(rot)))
     return out
 
 

@@ -17,12 +17,9 @@ import os
 
 import numpy as np
 
-__all__ = ['format_stamp', 'quat_to_yaw', 'read_relations', 'read_trajectory', 'write_tum']
+from ..core.geometry import quat_to_yaw
 
-
-def quat_to_yaw(qx: np.ndarray, qy: np.ndarray, qz: np.ndarray, qw: np.ndarray) -> np.ndarray:
-    """Yaw (rad) of quaternions (rotation about z of the ZYX Euler decomposition)."""
-    return np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+__all__ = ['format_stamp', 'read_relations', 'read_trajectory', 'write_tum']
 
 
 def format_stamp(t: float) -> str:

@@ -22,7 +22,7 @@ from pf_slam_interfaces.msg import ParticleArray
 from rclpy.node import Node
 from sensor_msgs.msg import LaserScan
 
-from ..core.motion import compose
+from ..core.geometry import compose
 from ..core.stages import CorrectionStage, MapPatch
 from ..ros import convert, qos, topics
 from .common import (ScanQueue, announce_when_matched, declare_config, param, run_node, scan_fields,

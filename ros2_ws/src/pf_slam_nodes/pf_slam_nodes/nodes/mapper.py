@@ -24,9 +24,8 @@ from rclpy.node import Node
 from sensor_msgs.msg import LaserScan
 from tf2_msgs.msg import TFMessage
 
-from ..core.motion import compose, relative_pose
+from ..core.geometry import compose, matrix_to_quat, relative_pose
 from ..core.stages import MappingStage
-from ..io.calib import matrix_to_quat
 from ..io.mapfile import trinary
 from ..ros import convert, qos, topics
 from .common import (ScanQueue, announce_when_matched, declare_config, param, run_node, scan_fields,

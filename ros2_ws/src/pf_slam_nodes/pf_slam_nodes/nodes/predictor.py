@@ -43,10 +43,9 @@ from sensor_msgs.msg import Imu, JointState, LaserScan
 from tf2_msgs.msg import TFMessage
 
 from ..core.faults import ODOMETRY_NONFINITE, ScanChecks
-from ..core.motion import compose
+from ..core.geometry import compose, quat_to_yaw
 from ..core.odometry import GyroBuffer, OdometryBuffer, WheelOdometryIntegrator
 from ..core.stages import PredictionStage
-from ..io.trajectory import quat_to_yaw
 from ..ros import cdr, convert, qos, topics
 from .common import announce_when_matched, declare_config, param, run_node, status_publisher
 

@@ -1,4 +1,4 @@
-"""texture: colours the map's floor from the stereo camera (core: ``core/texture.py``).
+"""texture: colours the map's floor from the stereo camera (core: ``core/texture/``).
 
 Subscribes
 ----------
@@ -57,7 +57,7 @@ import os
 import threading
 import time
 from collections import deque
-from typing import Any, Optional
+from typing import Optional
 
 import numpy as np
 from nav_msgs.msg import MapMetaData, OccupancyGrid
@@ -68,8 +68,9 @@ from std_msgs.msg import String
 from geometry_msgs.msg import PoseStamped
 from tf2_msgs.msg import TFMessage
 
+from ..core.geometry import quat_to_matrix, quat_to_yaw
 from ..core.texture import StereoRig, StereoTexturer, TextureConfig, TextureMap, interpolate_poses
-from ..io.trajectory import quat_to_yaw
+from ..io.calib import read_stereo_rig
 from ..ros import convert, qos, topics
 from .common import announce_when_matched, declare_config, param, run_node
 
@@ -90,13 +91,6 @@ def image_array(msg: Image) -> np.ndarray:
         raise ValueError(f"image {w} x {h} ({msg.encoding}) with step {step} has {buf.size} bytes")
     a = buf[: h * step].reshape(h, step)[:, : w * ch]
     return a.reshape(h, w, ch) if ch == 3 else a
-
-
-def _quat_matrix(q: Any) -> np.ndarray:
-    x, y, z, w = q.x, q.y, q.z, q.w
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
 @dataclasses.dataclass
@@ -149,7 +143,7 @@ class TextureNode(Node):
         self._tf: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self.rig: Optional[StereoRig] = None
         if self.calibration_dir:
-            self.rig = StereoRig.from_param_dir(self.calibration_dir)
+            self.rig = read_stereo_rig(self.calibration_dir)
 
         self.lock = threading.Lock()
         self._cond = threading.Condition(self.lock)
@@ -212,9 +206,14 @@ class TextureNode(Node):
     def _on_tf_static(self, msg: TFMessage) -> None:
         for tr in msg.transforms:
             if tr.header.frame_id == self.base_frame:
-                t = tr.transform.translation
-                self._tf[tr.child_frame_id] = (_quat_matrix(tr.transform.rotation),
-                                               np.array([t.x, t.y, t.z]))
+                t, q = tr.transform.translation, tr.transform.rotation
+                try:
+                    rot = quat_to_matrix(q.x, q.y, q.z, q.w)
+                except ValueError as e:  # this mount stays unknown (or as it was)
+                    self.get_logger().warning(
+                        f"/tf_static: {tr.header.frame_id} -> {tr.child_frame_id} ignored: {e}")
+                    continue
+                self._tf[tr.child_frame_id] = (rot, np.array([t.x, t.y, t.z]))
         self._ensure_rig()
         self._release()
 

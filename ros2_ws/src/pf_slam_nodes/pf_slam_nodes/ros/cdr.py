@@ -18,8 +18,7 @@ import struct
 
 import numpy as np
 
-from ..io.bag import yaw_to_quat
-from ..io.trajectory import quat_to_yaw
+from ..core.geometry import quat_to_yaw, yaw_to_quat
 
 _HDR = 4  # encapsulation header; alignment counts from its end
 _LITTLE_ENDIAN = b"\x00\x01\x00\x00"  # the encapsulation header the writers below emit

@@ -11,7 +11,7 @@ from pf_slam_interfaces.msg import ParticleArray
 from sensor_msgs.msg import LaserScan
 
 from ..io.bag import stamp_ns_of as stamp_to_ns  # noqa: F401  (Time or message -> int ns)
-from ..io.bag import yaw_to_quat
+from ..core.geometry import yaw_to_quat
 from .cdr import CdrReader
 
 

@@ -41,6 +41,7 @@ import numpy as np
 
 from .paths import pose_on_path
 
+from pf_slam_nodes.core.geometry import rpy_to_matrix, rpy_to_quat
 from pf_slam_nodes.io.bag import BagError, laser_scan, odometry, open_writer, tf_static
 from pf_slam_nodes.io.mapfile import write_map
 from pf_slam_nodes.io.trajectory import write_tum
@@ -437,7 +438,6 @@ def mount_pose(chain: Sequence[tuple[str, str, Sequence[float], Sequence[float]]
     """``(R (3, 3), t (3,))`` of the last frame of a chain of static transforms
     ``(parent, child, (x, y, z), (roll, pitch, yaw) rad)`` in the first parent (each child the
     next one's parent)."""
-    from pf_slam_nodes.io.calib import rpy_to_matrix
     rot, t = np.eye(3), np.zeros(3)
     for k, (parent, child, xyz, rpy) in enumerate(chain):
         if k and parent != chain[k - 1][1]:
@@ -577,7 +577,7 @@ def simulate_indoor(out_dir: str | os.PathLike, seed: int = 0, duration_s: float
                             f'duration_s={n_scans / SCAN_RATE_HZ:g} odom_rate_hz={odom_rate_hz}')
         t0 = int(stamps_ns[0])
         bag.write(TF_STATIC_TOPIC, t0, tf_static(
-            t0, [(parent, child, tuple(float(v) for v in xyz), _rpy_quat(rpy)) for parent, child, xyz, rpy in chain]))
+            t0, [(parent, child, tuple(float(v) for v in xyz), rpy_to_quat(rpy)) for parent, child, xyz, rpy in chain]))
         for i in range(len(t_s)):
             stamp = int(stamps_ns[i])
             if i % odom_step == 0:
@@ -601,16 +601,6 @@ def simulate_indoor(out_dir: str | os.PathLike, seed: int = 0, duration_s: float
         n_odom=n_odom,
         path_length_m=float(np.hypot(*np.diff(truth[:, :2], axis=0).T).sum()),
         odom_drift_m=float(np.hypot(*(odom[last, :2] - truth[last, :2]))))
-
-
-def _rpy_quat(rpy: Sequence[float]) -> tuple[float, float, float, float]:
-    """(roll, pitch, yaw) rad -> quaternion (x, y, z, w) of Rz(yaw) Ry(pitch) Rx(roll)."""
-    r, p, y = (0.5 * float(v) for v in rpy)
-    if r == 0.0 and p == 0.0 and y == 0.0:
-        return (0.0, 0.0, 0.0, 1.0)
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    return (sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy)
 
 
 # --------------------------------------------------------------------------------------------

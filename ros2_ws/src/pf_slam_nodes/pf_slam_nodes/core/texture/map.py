@@ -1,0 +1,265 @@
+"""Stage 7: the texture accumulator (:class:`TextureMap`, tiled running-mean RGB per world cell)
+and the images made from it (north-up BGR for a PNG, overlay with the occupancy grid)."""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+
+from .config import TextureConfig
+
+# --------------------------------------------------------------------------------------------
+# the accumulator
+
+
+class TextureMap:
+    """Running-mean RGB per world cell, in tiles allocated on demand.
+
+    Cell ``(i, j)`` (column i along x, row j along y) covers
+    ``[anchor_x + i * cell_m, + cell_m) x [anchor_y + j * cell_m, + cell_m)``; tiles are
+    ``tile_cells`` x ``tile_cells`` cells. Memory: 16 bytes per cell of an allocated tile.
+
+    Parameters
+    ----------
+    cell_m : float
+        Cell size (m).
+    tile_cells : int
+        Tile edge (cells).
+    max_tiles : int
+        Tiles allocated at most; samples in further tiles are dropped (``samples_dropped``).
+    anchor_xy : (2,)
+        World corner of cell ``(0, 0)`` (m): align it with the map whose geometry the
+        texture will be rendered in (``/map``'s origin) to avoid resampling shifts.
+    """
+
+    def __init__(self, cell_m: float = 0.1, tile_cells: int = 128, max_tiles: int = 1024,
+                 anchor_xy: tuple[float, float] | np.ndarray = (0.0, 0.0)) -> None:
+        if not cell_m > 0 or tile_cells < 1 or max_tiles < 1:
+            raise ValueError(f'bad texture map geometry: cell {cell_m}, tile {tile_cells}, '
+                             f'max tiles {max_tiles}')
+        self.cell_m = float(cell_m)
+        self.tile_cells = int(tile_cells)
+        self.max_tiles = int(max_tiles)
+        self.anchor = np.asarray(anchor_xy, dtype=np.float64).reshape(2).copy()
+        #: (tx, ty) -> (mean (T, T, 3) float32, count (T, T) float32); row = y, column = x
+        self.tiles: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        self.samples_added = 0
+        self.samples_dropped = 0
+
+    @classmethod
+    def from_config(cls, cfg: TextureConfig, anchor_xy: tuple[float, float] | np.ndarray = (0.0, 0.0),
+                    ) -> TextureMap:
+        return cls(cfg.cell_m, cfg.tile_cells, cfg.max_tiles, anchor_xy)
+
+    @property
+    def memory_bytes(self) -> int:
+        return 16 * self.tile_cells ** 2 * len(self.tiles)
+
+    def cells_of(self, xy: np.ndarray) -> np.ndarray:
+        """World ``(N, 2)`` (m) -> int64 cell indices ``(N, 2)`` ``[i (x), j (y)]``."""
+        return np.floor((np.asarray(xy, dtype=np.float64) - self.anchor) / self.cell_m
+                        ).astype(np.int64)
+
+    def add(self, xy: np.ndarray, rgb: np.ndarray) -> int:
+        """Add samples: world points ``(N, 2)`` (m) with colours ``(N, 3)`` (0..255).
+
+        Every sample weighs 1: a cell's colour is the mean of all samples that fell in it
+        (``mean += (sum - n mean) / (count + n)`` per cell and call). Returns the number of
+        samples added (the rest needed a tile beyond ``max_tiles``).
+        """
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        col = np.asarray(rgb, dtype=np.float32).reshape(-1, 3)
+        if len(xy) != len(col):
+            raise ValueError(f'{len(xy)} points but {len(col)} colours')
+        ok = np.isfinite(xy).all(axis=1)
+        if not ok.all():
+            xy, col = xy[ok], col[ok]
+        if not len(xy):
+            return 0
+        t = self.tile_cells
+        cells = self.cells_of(xy)
+        tiles = np.floor_divide(cells, t)
+        tlo, thi = tiles.min(axis=0), tiles.max(axis=0)
+        ntx, nty = (thi - tlo + 1).tolist()
+        if ntx * nty > 64:  # scattered input: one call per group of nearby samples
+            key = (tiles[:, 0] - tlo[0]) // 8 * (nty // 8 + 1) + (tiles[:, 1] - tlo[1]) // 8
+            order = np.argsort(key, kind='stable')
+            ks = key[order]
+            cuts = np.flatnonzero(ks[1:] != ks[:-1]) + 1
+            return sum(self.add(xy[g], col[g]) for g in np.split(order, cuts))
+        # dense bincount over the tile-aligned bounding box of this batch
+        gw, gh = ntx * t, nty * t
+        loc = cells - tlo * t
+        flat = loc[:, 1] * gw + loc[:, 0]
+        n = np.bincount(flat, minlength=gw * gh).reshape(gh, gw)
+        sums = np.stack([np.bincount(flat, weights=col[:, ch], minlength=gw * gh)
+                         for ch in range(3)], axis=-1).reshape(gh, gw, 3)
+        added = 0
+        for jy in range(nty):
+            for ix in range(ntx):
+                nn = n[jy * t:(jy + 1) * t, ix * t:(ix + 1) * t]
+                touched = nn > 0
+                if not touched.any():
+                    continue
+                n_here = int(nn.sum())
+                tk = (int(tlo[0]) + ix, int(tlo[1]) + jy)
+                tile = self.tiles.get(tk)
+                if tile is None:
+                    if len(self.tiles) >= self.max_tiles:
+                        self.samples_dropped += n_here
+                        continue
+                    tile = (np.zeros((t, t, 3), np.float32), np.zeros((t, t), np.float32))
+                    self.tiles[tk] = tile
+                mean, count = tile
+                ss = sums[jy * t:(jy + 1) * t, ix * t:(ix + 1) * t][touched]
+                nt = nn[touched].astype(np.float64)
+                c_new = count[touched] + nt
+                m = mean[touched]
+                mean[touched] = m + ((ss - nt[:, None] * m) / c_new[:, None]).astype(np.float32)
+                count[touched] = c_new
+                added += n_here
+        self.samples_added += added
+        return added
+
+    def covered_bounds(self) -> Optional[tuple[float, float, float, float]]:
+        """World ``(xmin, ymin, xmax, ymax)`` of the allocated tiles (m), or None."""
+        if not self.tiles:
+            return None
+        k = np.array(list(self.tiles), dtype=np.int64)
+        ext = self.tile_cells * self.cell_m
+        lo = self.anchor + k.min(axis=0) * ext
+        hi = self.anchor + (k.max(axis=0) + 1) * ext
+        return float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])
+
+    def cell_count(self) -> int:
+        """Cells with at least one sample."""
+        return int(sum(int((c > 0).sum()) for _, c in self.tiles.values()))
+
+    def render(self, origin_xy: tuple[float, float] | np.ndarray, resolution: float,
+               width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+        """The texture in a map geometry (``OccupancyGrid`` layout, row 0 = lowest y).
+
+        An output cell coarser than 1.5 texture cells is the sample-weighted mean of the
+        texture cells whose centres fall in it; a finer (or similar) one takes the texture cell
+        containing its centre (exact when the grids are aligned). Work memory is per block of
+        256 x 256 output cells; only the output itself (4 bytes per cell) is whole.
+
+        Returns
+        -------
+        rgb : (height, width, 3) uint8
+            Observed cells never ``(0, 0, 0)`` (clamped to 1); unobserved cells 0.
+        covered : (height, width) bool
+        """
+        w, h = int(width), int(height)
+        if w <= 0 or h <= 0 or not resolution > 0:
+            raise ValueError(f'bad render geometry {w} x {h} at {resolution!r} m')
+        o = np.asarray(origin_xy, dtype=np.float64).reshape(-1)[:2]
+        res = float(resolution)
+        t, cm = self.tile_cells, self.cell_m
+        ext = t * cm
+        coarse = res >= 1.5 * cm
+        rgb = np.zeros((h, w, 3), np.uint8)
+        covered = np.zeros((h, w), bool)
+        blk = 256
+        # output cell range each tile can write, and the output blocks it meets
+        jobs: dict[tuple[int, int], list] = {}
+        for key in self.tiles:
+            corner = self.anchor + np.array(key, dtype=np.float64) * ext
+            if coarse:  # cells containing the texture cell centres
+                lo = np.floor((corner + 0.5 * cm - o) / res).astype(np.int64)
+                hi = np.floor((corner + ext - 0.5 * cm - o) / res).astype(np.int64) + 1
+            else:  # cells whose centres lie in the tile
+                lo = np.ceil((corner - o) / res - 0.5).astype(np.int64)
+                hi = np.ceil((corner + ext - o) / res - 0.5).astype(np.int64)
+            lo = np.maximum(lo, 0)
+            hi = np.minimum(hi, [w, h])
+            if (lo >= hi).any():
+                continue
+            for by in range(int(lo[1]) // blk, (int(hi[1]) - 1) // blk + 1):
+                for bx in range(int(lo[0]) // blk, (int(hi[0]) - 1) // blk + 1):
+                    jobs.setdefault((bx, by), []).append((key, corner))
+        for (bx, by), tiles in jobs.items():
+            c0, r0 = bx * blk, by * blk
+            c1, r1 = min(c0 + blk, w), min(r0 + blk, h)
+            bw, bh = c1 - c0, r1 - r0
+            if coarse:
+                sums = np.zeros((bh * bw, 3), np.float64)
+                cnts = np.zeros(bh * bw, np.float64)
+            else:
+                mean_b = np.zeros((bh, bw, 3), np.float32)
+                cnt_b = np.zeros((bh, bw), np.float32)
+            for key, corner in tiles:
+                mean, count = self.tiles[key]
+                if coarse:
+                    jj, ii = np.nonzero(count > 0)
+                    oc = np.floor((corner[0] + (ii + 0.5) * cm - o[0]) / res).astype(np.int64) - c0
+                    orow = np.floor((corner[1] + (jj + 0.5) * cm - o[1]) / res).astype(np.int64) - r0
+                    ok = (oc >= 0) & (oc < bw) & (orow >= 0) & (orow < bh)
+                    if not ok.any():
+                        continue
+                    fl = orow[ok] * bw + oc[ok]
+                    cw = count[jj[ok], ii[ok]].astype(np.float64)
+                    cnts += np.bincount(fl, weights=cw, minlength=bh * bw)
+                    m = mean[jj[ok], ii[ok]]
+                    for ch in range(3):
+                        sums[:, ch] += np.bincount(fl, weights=m[:, ch] * cw, minlength=bh * bw)
+                else:
+                    xs = o[0] + (np.arange(c0, c1) + 0.5) * res
+                    ys = o[1] + (np.arange(r0, r1) + 0.5) * res
+                    ii = np.floor((xs - corner[0]) / cm).astype(np.int64)
+                    jj = np.floor((ys - corner[1]) / cm).astype(np.int64)
+                    ci = np.flatnonzero((ii >= 0) & (ii < t))
+                    ri = np.flatnonzero((jj >= 0) & (jj < t))
+                    if not ci.size or not ri.size:
+                        continue
+                    sel = np.ix_(ri, ci)
+                    mean_b[sel] = mean[jj[ri][:, None], ii[ci][None, :]]
+                    cnt_b[sel] = count[jj[ri][:, None], ii[ci][None, :]]
+            if coarse:
+                cov_b = (cnts > 0).reshape(bh, bw)
+                mean_b = (sums / np.maximum(cnts, 1e-12)[:, None]).reshape(bh, bw, 3)
+            else:
+                cov_b = cnt_b > 0
+            out = np.clip(np.rint(mean_b), 0, 255).astype(np.uint8)
+            out[cov_b] = np.maximum(out[cov_b], 1)
+            out[~cov_b] = 0
+            rgb[r0:r1, c0:c1] = out
+            covered[r0:r1, c0:c1] = cov_b
+        return rgb, covered
+
+    def render_native(self) -> Optional[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """``(rgb, covered, origin_xy)`` over the allocated tiles at ``cell_m``, or None."""
+        b = self.covered_bounds()
+        if b is None:
+            return None
+        n = np.rint((np.array(b[2:]) - np.array(b[:2])) / self.cell_m).astype(int)
+        rgb, cov = self.render(b[:2], self.cell_m, int(n[0]), int(n[1]))
+        return rgb, cov, np.array(b[:2])
+
+
+# --------------------------------------------------------------------------------------------
+# output images
+
+
+def north_up_bgr(rgb: np.ndarray) -> np.ndarray:
+    """``OccupancyGrid``-layout RGB (row 0 = lowest y) -> BGR for ``cv2.imwrite``, north up."""
+    return np.ascontiguousarray(np.asarray(rgb)[::-1, :, ::-1])
+
+
+def overlay_occupancy(rgb: np.ndarray, covered: np.ndarray, occupancy: np.ndarray,
+                      occupied_threshold: int = 65, free_threshold: int = 25) -> np.ndarray:
+    """Texture + occupancy in one RGB image (same geometry, ``OccupancyGrid`` layout).
+
+    Occupied cells (``>= occupied_threshold``) are drawn red (255, 0, 0) over everything;
+    textured cells show their colour; untextured free cells are light grey (200), unknown ones
+    dark grey (90).
+    """
+    occ = np.asarray(occupancy)
+    if occ.shape != rgb.shape[:2]:
+        raise ValueError(f'occupancy {occ.shape} and texture {rgb.shape[:2]} differ')
+    out = np.full(rgb.shape, 90, dtype=np.uint8)
+    out[(occ >= 0) & (occ <= free_threshold)] = 200
+    out[covered] = rgb[covered]
+    out[occ >= occupied_threshold] = (255, 0, 0)
+    return out
