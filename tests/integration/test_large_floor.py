@@ -9,7 +9,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from pf_slam_nodes.core import metrics  # noqa: E402
+from pf_slam_nodes.io import evaluation  # noqa: E402
 from pf_slam_nodes.graph import run  # noqa: E402
 from pf_slam_nodes.io.mapfile import read_map  # noqa: E402
 from pf_slam_nodes.sim.floor import floor_world, simulate_floor  # noqa: E402
@@ -33,7 +33,7 @@ def test_large_floor_map_covers_the_explored_box(floor_run):
     sim, out, res = floor_run
     s = res.summary
     assert s["complete"] and s["scans_processed"] == sim.n_scans == 1396 and not any(s["faults"].values())
-    ev = metrics.evaluate(out / "trajectory.tum", sim.ground_truth_path)
+    ev = evaluation.evaluate(out / "trajectory.tum", sim.ground_truth_path)
     # measured 0.58 m over 435 m (the odometry drifts 487 m: its heading error is 0.3-0.6 deg/m)
     assert ev["ate"]["rmse"] < 1.2 and sim.odom_drift_m > 100.0
     occ, res_m, origin = read_map(out / "map.yaml")
@@ -74,8 +74,8 @@ def test_car_drive_from_a_small_grid(tmp_path, ros_domain):
     b = run(str(bag), tmp_path / "b", params_file=str(kaist), progress=False, domain_id=ros_domain,
             texture=False, record=False, overrides=small)
     assert a.summary["complete"] and b.summary["complete"]
-    ea = metrics.evaluate(tmp_path / "a" / "trajectory.tum", gt)["ate"]["rmse"]
-    eb = metrics.evaluate(tmp_path / "b" / "trajectory.tum", gt)["ate"]["rmse"]
+    ea = evaluation.evaluate(tmp_path / "a" / "trajectory.tum", gt)["ate"]["rmse"]
+    eb = evaluation.evaluate(tmp_path / "b" / "trajectory.tum", gt)["ate"]["rmse"]
     assert eb < 1.5 * ea + 0.05, (ea, eb)
     occ, res_m, origin = read_map(tmp_path / "b" / "map.yaml")
     origin = np.asarray(origin)[:2]

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from pf_slam_nodes.cli import main
-from pf_slam_nodes.core import metrics
+from pf_slam_nodes.io import evaluation
 
 ROOT = Path(__file__).resolve().parents[2]
 CAR = ROOT / "bags" / "car_sample"
@@ -32,5 +32,5 @@ def test_car_sample_without_params_runs_the_kaist_profile(tmp_path, capfd):
     a = np.loadtxt(tmp_path / "auto" / "trajectory.tum")
     b = np.loadtxt(tmp_path / "params" / "trajectory.tum")
     assert a.shape == b.shape == (2000, 8) and np.array_equal(a, b)  # --rate max: deterministic
-    ev = metrics.evaluate(tmp_path / "auto" / "trajectory.tum", ROOT / "bags" / "car_sample_ground_truth.csv")
+    ev = evaluation.evaluate(tmp_path / "auto" / "trajectory.tum", ROOT / "bags" / "car_sample_ground_truth.csv")
     assert ev["ate"]["rmse"] < 0.06, ev["ate"]  # measured 0.012 m (built-in defaults: 9.4 m)
