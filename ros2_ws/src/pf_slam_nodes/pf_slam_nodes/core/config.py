@@ -146,6 +146,51 @@ class DiffDriveConfig(_ConfigBase):
 
 
 @dataclasses.dataclass(frozen=True)
+class WheelsConfig(_ConfigBase):
+    """Wheel encoders (+ gyro) as odometry (predictor, ``odometry_source: encoders``).
+
+    Cumulative wheel angles (rad) become a differential-drive pose
+    (:class:`~pf_slam_nodes.core.odometry.WheelOdometryIntegrator`); with a gyro its yaw
+    increments replace the wheels' yaw difference.
+
+    Attributes
+    ----------
+    left_diameter_m : float
+        Left wheel diameter, odometry_source encoders (m).
+    right_diameter_m : float
+        Right wheel diameter, odometry_source encoders (m).
+    base_m : float
+        Distance between the wheels, odometry_source encoders (m).
+    max_speed_mps : float
+        A wheel step faster than this is an encoder counter jump: its motion is discarded and
+        counted (m/s; .inf: no check).
+    gyro_rest_bias : bool
+        With a gyro: steps where neither wheel counter moved have zero yaw, and rests of
+        wheels.rest_min_s or longer calibrate the gyro's yaw bias (standstill calibration).
+    rest_min_s : float
+        wheels.gyro_rest_bias: shortest rest (no counter moving) that calibrates the gyro bias (s).
+    """
+
+    left_diameter_m: float = 0.154
+    right_diameter_m: float = 0.154
+    base_m: float = 0.33
+    max_speed_mps: float = 50.0
+    gyro_rest_bias: bool = True
+    rest_min_s: float = 0.5
+
+    def __post_init__(self) -> None:
+        _check_pos("left_diameter_m", self.left_diameter_m)
+        _check_pos("right_diameter_m", self.right_diameter_m)
+        _check_pos("base_m", self.base_m)
+        v = self.max_speed_mps
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:  # inf: no check
+            raise ValueError(f"max_speed_mps must be > 0, got {v!r}")
+        if not isinstance(self.gyro_rest_bias, bool):
+            raise ValueError(f"gyro_rest_bias must be a bool, got {self.gyro_rest_bias!r}")
+        _check_pos("rest_min_s", self.rest_min_s)
+
+
+@dataclasses.dataclass(frozen=True)
 class GridConfig(_ConfigBase):
     """Log-odds occupancy grid.
 

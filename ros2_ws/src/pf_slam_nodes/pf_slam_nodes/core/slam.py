@@ -4,6 +4,14 @@
 (the same :mod:`~pf_slam_nodes.core.stages` objects, the same map patches between mapping and
 correlation, the same random streams), so for the same seed it produces the same trajectory as
 the node graph, bit for bit. Used by tests, tuning and the stage profile of the benchmarks.
+
+Two ways to feed it: :meth:`ParticleFilterSlam.process_odometry_scan` (one scan with the
+odometry pose at its time, already paired), or the input streams as the predictor node gets them
+(:meth:`~ParticleFilterSlam.open_stream`, then ``add_scan`` / ``add_odometry`` / ``add_encoders``
+/ ``add_gyro`` / ``add_imu`` in arrival order and ``end_of_stream``): these go through the
+predictor node's own scheduling (:class:`~pf_slam_nodes.core.scheduler.PredictorScheduler`:
+odometry pairing, wheel encoders integrated once the gyro covers them, the fault counts), with
+each correction run at once.
 """
 
 from __future__ import annotations
@@ -14,10 +22,11 @@ from typing import Optional
 import numpy as np
 
 from .config import (CorrelationConfig, FilterConfig, GridConfig, LaserConfig, OdometryMotionConfig,
-                     ResampleConfig)
+                     ResampleConfig, WheelsConfig)
 from .correlation import GridLikelihoodField
 from .grid import LogOddsGrid
 from .geometry import compose
+from .scheduler import PredictorScheduler, PublishPose, SendCorrection
 from .stages import CorrectionStage, MappingStage, PredictionStage, STAGE_STEPS, stage_seconds
 
 STAGES = STAGE_STEPS
@@ -49,6 +58,9 @@ class ParticleFilterSlam:
         self.mapper = MappingStage(filter_cfg, grid_cfg, laser_cfg)
         self.num_updates = 0  # corrections after the first scan
         self._pose: Optional[np.ndarray] = None
+        self.scheduler: Optional[PredictorScheduler] = None  # open_stream()
+        self.stream_poses: list[tuple[int, np.ndarray]] = []  # (stamp ns, pose) per scan, in scan order
+        self._counts = {"scans": 0, "odometry": 0, "gyro": 0}
 
     @property
     def timings(self) -> dict[str, float]:
@@ -121,3 +133,77 @@ class ParticleFilterSlam:
         self._pose = c.pose.copy()
         self.num_updates += 0 if first else 1
         return c.pose.copy()
+
+    # ------------------------------------------------------------------ input streams
+    def open_stream(self, odometry_source: str = "odom", odom_sync: str = "interpolate",
+                    wheels_cfg: Optional[WheelsConfig] = None, gyro: bool = False,
+                    time_gap_s: float = 60.0) -> PredictorScheduler:
+        """Take the inputs as streams, as the predictor node does (same parameters: the
+        node's ``odometry_source``, ``odom_sync``, ``wheels.*``, a gyro (``fog_format`` not
+        'none') and ``time_gap_s``). All input is here (no live waiting: ``odom_wait_scans``
+        and the clock check are off, as under `pf-slam run`). The poses collect in
+        :attr:`stream_poses`; the fault counts are ``scheduler.faults()``."""
+        self.scheduler = PredictorScheduler(self.predictor.filter_cfg, self.predictor.motion_cfg,
+                                            odometry_source, odom_sync, wheels_cfg, gyro=gyro,
+                                            odom_wait_scans=0, stamp_offset_s=0.0, time_gap_s=time_gap_s,
+                                            stage=self.predictor)
+        self.stream_poses = []
+        self._counts = {"scans": 0, "odometry": 0, "gyro": 0}
+        return self.scheduler
+
+    def _run(self, actions: list) -> None:
+        """Carry out the scheduler's actions; a correction is run at once and answered."""
+        work = list(actions)
+        while work:
+            a = work.pop(0)
+            if isinstance(a, PublishPose):
+                self.stream_poses.append((int(a.stamp), np.asarray(a.pose, dtype=np.float64).copy()))
+            elif isinstance(a, SendCorrection):
+                ranges, angles, range_min, range_max = a.payload
+                first = self._pose is None
+                c = self.corrector.correct(a.particles, a.log_weights, ranges, angles, range_min, range_max)
+                patch = self.mapper.integrate(c.pose, ranges, angles, range_min, range_max)
+                self.corrector.apply_patch(patch)
+                self._pose = c.pose.copy()
+                self.num_updates += 0 if first else 1
+                work[:0] = self.scheduler.corrected(a.index, c.particles, c.log_weights, c.pose, a.stamp)
+
+    def add_scan(self, stamp_ns: int, ranges: np.ndarray, angle_min: float, angle_max: float,
+                 angle_increment: float, range_min: float = 0.0, range_max: float = math.inf) -> None:
+        """A scan as a LaserScan carries it (ranges (B,), the angles and the range limits):
+        checked (:class:`~pf_slam_nodes.core.faults.ScanChecks`), then posed in its turn."""
+        s = self.scheduler
+        ranges = np.asarray(ranges, dtype=np.float64)
+        usable, faults = s.checks.check(stamp_ns, ranges, angle_min, angle_max, angle_increment,
+                                        range_min, range_max)
+        angles = angle_min + angle_increment * np.arange(ranges.size, dtype=np.float64)
+        self._counts["scans"] += 1
+        self._run(s.add_scan(int(stamp_ns), usable, (ranges, angles, float(range_min), float(range_max)), faults))
+
+    def add_odometry(self, stamp_ns: int, pose: np.ndarray) -> None:
+        """An odometry pose ``(x, y, yaw)`` (odometry_source 'odom')."""
+        self._counts["odometry"] += 1
+        self._run(self.scheduler.add_odometry(int(stamp_ns), np.asarray(pose, dtype=np.float64)))
+
+    def add_encoders(self, stamp_ns: int, wheels_rad: Optional[np.ndarray]) -> None:
+        """Cumulative (left, right) wheel angles (rad), e.g. a JointState's first two positions
+        (odometry_source 'encoders'); None: an unreadable message (counted)."""
+        self._counts["odometry"] += 1
+        self._run(self.scheduler.add_encoders(int(stamp_ns), None if wheels_rad is None
+                                              else np.asarray(wheels_rad, dtype=np.float64)))
+
+    def add_gyro(self, stamps_ns: Optional[np.ndarray], dyaw_rad: Optional[np.ndarray]) -> None:
+        """One gyro message: yaw increments (rad) at their stamps, e.g. a FogBatch."""
+        self._counts["gyro"] += 1
+        self._run(self.scheduler.add_gyro(stamps_ns, dyaw_rad))
+
+    def add_imu(self, stamp_ns: int, yaw_rate: float) -> None:
+        """A yaw rate (rad/s, an Imu's angular_velocity.z)."""
+        self._counts["gyro"] += 1
+        self._run(self.scheduler.add_imu(int(stamp_ns), float(yaw_rate)))
+
+    def end_of_stream(self) -> list[tuple[int, np.ndarray]]:
+        """No more input: the scans still waiting are posed. Returns :attr:`stream_poses`."""
+        c = self._counts
+        self._run(self.scheduler.end_of_stream(c["scans"], c["odometry"], c["gyro"]))
+        return self.stream_poses

@@ -25,6 +25,7 @@ CONFIG_SECTIONS: dict[str, type] = {
     "filter": cfg.FilterConfig,
     "motion": cfg.OdometryMotionConfig,
     "diff_drive": cfg.DiffDriveConfig,
+    "wheels": cfg.WheelsConfig,
     "grid": cfg.GridConfig,
     "correlation": cfg.CorrelationConfig,
     "resample": cfg.ResampleConfig,
@@ -52,14 +53,6 @@ PARAM_DOCS: dict[str, str] = {
     "odom_sync": "'exact': odometry stamped like each scan (same log line); 'interpolate': asynchronous odometry",
     "fog_format": "yaw from a gyro instead of the wheels: 'none', 'batch' (FogBatch on fog), 'vector3' "
                   "(Vector3Stamped on fog) or 'imu' (sensor_msgs/Imu on imu, mounted level: angular_velocity.z)",
-    "wheels.left_diameter_m": "left wheel diameter, odometry_source encoders (m)",
-    "wheels.right_diameter_m": "right wheel diameter, odometry_source encoders (m)",
-    "wheels.base_m": "distance between the wheels, odometry_source encoders (m)",
-    "wheels.gyro_rest_bias": "with a gyro: steps where neither wheel counter moved have zero yaw, and rests of "
-                              "wheels.rest_min_s or longer calibrate the gyro's yaw bias (standstill calibration)",
-    "wheels.rest_min_s": "wheels.gyro_rest_bias: shortest rest (no counter moving) that calibrates the gyro bias (s)",
-    "wheels.max_speed_mps": "a wheel step faster than this is an encoder counter jump: its motion is "
-                            "discarded and counted (m/s)",
     "odom_wait_scans": "live inputs: a scan whose odometry has not arrived while this many scans wait behind it is "
                        "posed with the nearest earlier odometry (counted: odom_not_arrived); 0: off (pf-slam run: "
                        "the replay's pf_slam/replay_stall decides instead, deterministically)",

@@ -16,22 +16,19 @@ from typing import Any
 #: Config sections each node declares (``<section>.<field>`` for every field of the class).
 NODE_SECTIONS: dict[str, tuple[str, ...]] = {
     "bag_replay": (),
-    "predictor": ("filter", "motion"),
+    "predictor": ("filter", "motion", "wheels"),  # wheels: with odometry_source encoders only
     "correlator": ("filter", "grid", "correlation", "resample", "laser"),
     "mapper": ("filter", "grid", "laser"),
     "texture": ("texture",),
 }
 
 _FRAMES = {"map_frame": "map", "odom_frame": "odom", "base_frame": "base_link"}
-#: Plain (non-config) parameters each node declares, with their defaults. ``predictor``'s
-#: ``wheels.*`` are declared with ``odometry_source: encoders`` only.
+#: Plain (non-config) parameters each node declares, with their defaults.
 NODE_PLAIN: dict[str, dict[str, Any]] = {
     "bag_replay": {"bag": "", "rate": "max", "max_in_flight": 100, "scan_topic": "/scan",
                    "clock_period_s": 0.01, "wait_for": ["predictor", "correlator", "mapper"], "restamp": ""},
     "predictor": {"map_frame": "map", "odometry_source": "odom", "odom_sync": "interpolate",
-                  "time_gap_s": 60.0, "expected_observers": 0, "wheels.left_diameter_m": 0.154,
-                  "wheels.right_diameter_m": 0.154, "wheels.base_m": 0.33, "wheels.max_speed_mps": 50.0,
-                  "wheels.gyro_rest_bias": True, "wheels.rest_min_s": 0.5, "fog_format": "none",
+                  "time_gap_s": 60.0, "expected_observers": 0, "fog_format": "none",
                   "odom_frame": "odom", "base_frame": "base_link", "publish_odom_tf": True,
                   "odom_wait_scans": 50, "stamp_offset_s": 2.0},
     "correlator": {"map_frame": "map", "expected_observers": 0},
@@ -56,7 +53,7 @@ def section_class(section: str) -> type:
         return TextureConfig
     from ..core import config as cfg
     return {"filter": cfg.FilterConfig, "motion": cfg.OdometryMotionConfig, "diff_drive": cfg.DiffDriveConfig,
-            "grid": cfg.GridConfig, "correlation": cfg.CorrelationConfig, "resample": cfg.ResampleConfig,
+            "wheels": cfg.WheelsConfig, "grid": cfg.GridConfig, "correlation": cfg.CorrelationConfig, "resample": cfg.ResampleConfig,
             "laser": cfg.LaserConfig}[section]
 
 
