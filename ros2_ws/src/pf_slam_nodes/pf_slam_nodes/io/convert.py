@@ -177,7 +177,9 @@ def log_times(scans: list, odoms: list, name: str,
     out = LogTimes(ns={})
     sc = np.array([s.stamp_ns for s in scans], dtype=np.int64)
     forward = int(np.count_nonzero(np.diff(sc) > 0))
-    if len(sc) > 1 and forward < 0.5 * (len(sc) - 1):
+    # no forward step at all (constant, zero), or most steps not forward over enough scans for
+    # that to mean something (a handful of scans with a repeat and a step back keep their times)
+    if len(sc) > 1 and (forward == 0 or (len(sc) > 10 and forward < 0.5 * (len(sc) - 1))):
         base = max(int(sc[0]), 0)
         for i, s in enumerate(scans):
             out.ns[id(s)] = base + i * period_ns
