@@ -18,7 +18,7 @@ PKG = Path(pf_slam_nodes.__file__).resolve().parent
 CORE = PKG / "core"
 
 #: package parts core/ must not import (core is imported by them, not the other way)
-FORBIDDEN_PACKAGE_PARTS = ("io", "nodes", "ros", "graph", "cli", "bench", "sim", "launch")
+FORBIDDEN_PACKAGE_PARTS = ("io", "nodes", "ros", "graph", "runner", "cli", "bench", "sim", "launch")
 #: third-party ROS modules (and ``*_msgs`` / ``*_interfaces`` message packages)
 FORBIDDEN_TOP = {"rclpy", "rosbags", "rosbag2_py", "rosidl_runtime_py", "tf2_ros", "launch",
                  "launch_ros", "ament_index_python", "builtin_interfaces"}

@@ -1,0 +1,267 @@
+"""The recorder nodes of `pf-slam run`: the run's own (poses, map, snapshots, progress, the
+nodes' status) and the result recorder (result.mcap)."""
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..io.bag import stamp_ns_of
+from ..io.mapfile import render_snapshot
+from ..ros import cdr
+
+
+class _Recorder:
+    """Collects per-scan poses and the latest /map; renders snapshots; prints progress."""
+
+    def __init__(self, node, out_dir: Path, scans_total: int, bag_duration_s: float,
+                 snapshot_every: int, progress: bool, texture: bool = False) -> None:
+        from geometry_msgs.msg import PoseStamped
+        from nav_msgs.msg import OccupancyGrid
+        from pf_slam_interfaces.msg import ParticleArray, ReplayStatus
+
+        from ..ros import qos, topics
+        self.node = node
+        self.out_dir = out_dir
+        self.scans_total = scans_total
+        self.bag_duration_s = bag_duration_s
+        self.snapshot_every = snapshot_every
+        self.progress = progress
+        self.stamps: list[int] = []
+        self.poses: list[np.ndarray] = []
+        self.updates = 0
+        self.map_msg = None
+        self.replay_counts: dict[str, int] | None = None
+        self.texture_msg = None
+        self.texture_meta = None
+        self.texture_status: dict | None = None
+        self.node_status: dict[str, dict] = {}  # pf_slam/status per node: fault counters
+        self.t0 = time.monotonic()
+        self._last_print = 0.0
+        self._writer: threading.Thread | None = None  # the snapshot being written, if any
+        self._writer_error: Exception | None = None
+        self.snapshots_written = 0
+        self.snapshots_skipped = 0
+        #: more consumers of the raw /pose bytes (the result recorder): one subscription, one
+        #: delivery per pose at the car's 100 Hz instead of one per consumer
+        self.pose_listeners: list = []
+        self.pose_subscription = node.create_subscription(PoseStamped, topics.POSE, self._on_pose, qos.pipeline(),
+                                                          raw=True)
+        node.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
+        node.create_subscription(OccupancyGrid, topics.MAP, self._on_map, qos.latched())
+        node.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
+        from std_msgs.msg import String
+        node.create_subscription(String, topics.STATUS, self._on_node_status, qos.latched(depth=10))
+        if texture:
+            from nav_msgs.msg import MapMetaData
+            from sensor_msgs.msg import Image
+            from std_msgs.msg import String
+
+            from ..nodes.texture import TEXTURE, TEXTURE_METADATA, TEXTURE_STATUS
+            node.create_subscription(Image, TEXTURE, self._on_texture, qos.latched())
+            node.create_subscription(MapMetaData, TEXTURE_METADATA, self._on_texture_meta, qos.latched())
+            node.create_subscription(String, TEXTURE_STATUS, self._on_texture_status, qos.latched())
+
+    def _on_texture(self, msg) -> None:
+        self.texture_msg = msg
+
+    def _on_texture_meta(self, msg) -> None:
+        self.texture_meta = msg
+
+    def _on_texture_status(self, msg) -> None:
+        self.texture_status = json.loads(msg.data)
+
+    def _on_node_status(self, msg) -> None:
+        status = json.loads(msg.data)
+        self.node_status[status["node"]] = status
+
+    def bag_error(self) -> str | None:
+        """The damage that ended the replay early (bag_replay's pf_slam/status), or None."""
+        return self.node_status.get("bag_replay", {}).get("error")
+
+    def faults(self) -> dict[str, int]:
+        """The input faults the nodes counted (summary.json "faults")."""
+        out: dict[str, int] = {}
+        for status in self.node_status.values():
+            for kind, n in status.get("faults", {}).items():
+                out[kind] = out.get(kind, 0) + int(n)
+        return out
+
+    def _on_replay_status(self, msg) -> None:
+        self.replay_counts = dict(zip(msg.topics, (int(c) for c in msg.counts)))
+
+    def _on_updated(self, msg) -> None:
+        self.updates += int(msg.update)
+
+    def _on_pose(self, raw: bytes) -> None:
+        for listener in self.pose_listeners:
+            listener(raw)
+        stamp, pose = cdr.pose_stamped_xy_yaw(raw)
+        self.stamps.append(stamp)
+        self.poses.append(pose)
+        k = len(self.poses)
+        if self.snapshot_every and k % self.snapshot_every == 0 and self.map_msg is not None:
+            self.snapshot(f"scan_{k:06d}.png")
+        self.print_progress()
+
+    def _on_map(self, msg) -> None:
+        self.map_msg = msg
+
+    def snapshot(self, name: str, wait: bool = False) -> None:
+        """Render the latest map and path to ``snapshots/<name>`` on the writer thread.
+
+        The executor thread only hands over references; a snapshot due while the previous one
+        is still being written is skipped and counted (``snapshots_skipped`` in summary.json).
+        ``wait``: write this one even if the writer is busy, and wait for it.
+        """
+        if self._writer is not None and self._writer.is_alive():
+            if not wait:
+                self.snapshots_skipped += 1
+                return
+            self._writer.join()
+        job = (self.map_msg, list(self.poses), self.out_dir / "snapshots" / name, f"scan {len(self.poses)}")
+        self._writer = threading.Thread(target=self._write_snapshot, args=job, daemon=True)
+        self._writer.start()
+        if wait:
+            self._writer.join()
+        if self._writer_error is not None:
+            raise self._writer_error
+
+    def _write_snapshot(self, map_msg, poses: list, path: Path, title: str) -> None:
+        from ..ros import convert
+        try:
+            occ, res, origin = convert.msg_to_grid(map_msg)
+            traj = np.array(poses)[:, :2] if poses else np.zeros((0, 2))
+            render_snapshot(occ, res, origin, traj, path, pose=poses[-1] if poses else None, title=title)
+            self.snapshots_written += 1
+        except Exception as exc:  # surfaced by the next snapshot() on the executor thread
+            self._writer_error = exc
+
+    def print_progress(self, final: bool = False) -> None:
+        now = time.monotonic()
+        tty = sys.stderr.isatty()
+        if not self.progress or (not final and now - self._last_print < (0.5 if tty else 10.0)):
+            return
+        self._last_print = now
+        k, n = len(self.poses), max(self.scans_total, 1)
+        wall = now - self.t0
+        rtf = (self.bag_duration_s * k / n) / wall if wall > 0 else 0.0
+        eta = wall * (n - k) / k if k else float("nan")
+        line = f"[pf-slam] scans {k}/{n}  RTF {rtf:5.1f}x  ETA {eta:5.0f} s"
+        sys.stderr.write(f"\r{line} " if tty else line + "\n")
+        if final and tty:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+
+class ResultRecorder:
+    """Records the run's outputs into ``OUT/result.mcap`` (rosbags' MCAP writer), so a user opens
+    the run in Foxglove Studio (or ``ros2 bag play``) and scrubs through it.
+
+    Subscribes raw (the CDR bytes go to the file as received: no message objects per scan at the
+    car's 100 Hz): the scan topic, pose, path, /tf, /tf_static, map (at most one per
+    ``map_every_s`` of bag time, always the final one) and the texture image. Log times are the
+    messages' header stamps (bag time). It announces itself on pf_slam/ready once its streams
+    are matched, so the replay waits for it and nothing is missed.
+    """
+
+    NAME = "pf_slam_result_recorder"
+
+    def __init__(self, node, path: Path, scan_topic: str, map_every_s: float, texture: bool = False,
+                 pose_feed: "_Recorder | None" = None) -> None:
+        """``pose_feed``: take /pose from that recorder's subscription instead of a second one."""
+        from rclpy.qos import QoSProfile
+
+        from ..io.bag import open_writer
+        from ..nodes.common import announce_when_matched
+        from ..ros import qos, topics
+        self.path = path
+        self._bag_dir = path.with_suffix(".bag_tmp")
+        if self._bag_dir.exists():
+            shutil.rmtree(self._bag_dir)
+        self._cm = open_writer(self._bag_dir)
+        self.bag = self._cm.__enter__()
+        self.map_every_ns = int(map_every_s * 1e9)
+        self.last_map_ns: int | None = None
+        self.last_stamp = 0
+        # topic, type, QoS, matched publishers to wait for (volatile topics only)
+        streams: list[tuple[str, str, QoSProfile, int]] = [
+            (scan_topic, "sensor_msgs/msg/LaserScan", qos.pipeline(), 1),
+            ("/" + topics.POSE, "geometry_msgs/msg/PoseStamped", qos.pipeline(), 1),
+            ("/" + topics.PATH, "nav_msgs/msg/Path", qos.outputs(10), 1),
+            (topics.TF, "tf2_msgs/msg/TFMessage", qos.outputs(10000), 2),  # mapper + predictor or the bag
+            (topics.TF_STATIC, "tf2_msgs/msg/TFMessage", qos.latched(10), 0),
+            ("/" + topics.MAP, "nav_msgs/msg/OccupancyGrid", qos.latched(), 0)]
+        if texture:
+            from ..nodes.texture import TEXTURE
+            streams.append(("/" + TEXTURE, "sensor_msgs/msg/Image", qos.latched(), 0))
+        needs = []
+        for topic, msgtype, profile, wait in streams:
+            self.bag.add_connection(topic, msgtype, latched=profile.durability == qos.latched().durability)
+            cb = self._on_map if topic == "/" + topics.MAP else self._writer_for(topic, msgtype)
+            if topic == "/" + topics.POSE and pose_feed is not None:
+                pose_feed.pose_listeners.append(cb)
+                needs.append((pose_feed.pose_subscription, wait))
+                continue
+            needs.append((node.create_subscription(_message_class(msgtype), topic, cb, profile, raw=True), wait))
+        announce_when_matched(node, needs, name=self.NAME)
+
+    def _writer_for(self, topic: str, msgtype: str):
+        from ..ros import convert
+        stamp_of = cdr.tf_message_stamp if msgtype == "tf2_msgs/msg/TFMessage" else convert.stamp_ns_from_cdr
+
+        def write(raw: bytes) -> None:
+            stamp = stamp_of(raw)
+            if stamp is not None:
+                self.last_stamp = stamp
+            self.bag.write_raw(topic, self.last_stamp if stamp is None else stamp, raw)
+        return write
+
+    def _on_map(self, raw: bytes) -> None:
+        """A map at most every map_every_ns of bag time (a car map is megabytes); the final one
+        is written by finish()."""
+        from ..ros import convert
+        stamp = convert.stamp_ns_from_cdr(raw)
+        if self.last_map_ns is None or stamp - self.last_map_ns >= self.map_every_ns:
+            self.bag.write_raw("/map", stamp, raw)
+            self.last_map_ns = stamp
+
+    @property
+    def counts(self) -> dict[str, int]:
+        return self.bag.counts
+
+    def finish(self, final_map=None) -> None:
+        """Write the final map (if not yet in the file), close, and leave a single result.mcap."""
+        if final_map is not None:
+            from rclpy.serialization import serialize_message
+            stamp = stamp_ns_of(final_map)
+            if self.last_map_ns != stamp:
+                self.bag.write_raw("/map", stamp, serialize_message(final_map))
+                self.last_map_ns = stamp
+        self.close()
+
+    def close(self) -> None:
+        if self._cm is None:
+            return
+        self._cm.__exit__(None, None, None)
+        self._cm = None
+        (mcap,) = self._bag_dir.glob("*.mcap")
+        mcap.replace(self.path)
+        shutil.rmtree(self._bag_dir)
+
+
+def _message_class(msgtype: str):
+    from ..nodes.bag_replay import message_class
+    return message_class(msgtype)
+
+
+def _drain_result(ex, result: ResultRecorder, poses: int, timeout_s: float = 5.0) -> None:
+    """Spin until the result recorder has every pose the run's recorder has (both subscribe)."""
+    deadline = time.monotonic() + timeout_s
+    while result.counts.get("/pose", 0) < poses and time.monotonic() < deadline:
+        ex.spin_once(timeout_sec=0.05)
