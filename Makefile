@@ -20,17 +20,17 @@ run: setup   ## the main job: the sample bag through the graph, then its error a
 test: setup
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
 
-bench: setup   ## prints tables (also written to runs/bench/carmen*.md): 5 filter seeds one process, seed 0 one process per node (~8 min here)
-	$(BIN)/pf-slam bench messages
-	$(BIN)/pf-slam bench carmen --data ../shared/data --out runs/bench --seeds 0 1 2 3 4
-	$(BIN)/pf-slam bench carmen --data ../shared/data --out runs/bench --seeds 0 --processes multi
+bench: setup   ## prints tables (also written to runs/bench/carmen*.md and docs/results.md): 5 filter seeds one process, seed 0 one process per node (~8 min here)
+	$(BIN)/pf-slam bench messages --results docs/results.md
+	$(BIN)/pf-slam bench carmen --data ../shared/data --out runs/bench --seeds 0 1 2 3 4 --results docs/results.md
+	$(BIN)/pf-slam bench carmen --data ../shared/data --out runs/bench --seeds 0 --processes multi --results docs/results.md
 
 bench-scaling: setup   ## particles 10-1000 (intel_2726) and grids 500²-4000² (intel_910): wall, RTF, peak RSS, stage split; plots in docs/img (~25 min)
-	$(BIN)/pf-slam bench scaling --data ../shared/data --out runs/bench
+	$(BIN)/pf-slam bench scaling --data ../shared/data --out runs/bench --results docs/results.md
 
 bench-car: setup   ## five simulated 300 s car drives x filter seeds 0 and 1 (simulated once; ~6 min here): ATE, DR, map F1, RTF vs ceiling
-	$(BIN)/pf-slam bench car --seeds 0 1 2 3 4 --filter-seeds 0 1 --out runs/bench
-	$(BIN)/pf-slam bench car --seeds 0 --out runs/bench --processes multi
+	$(BIN)/pf-slam bench car --seeds 0 1 2 3 4 --filter-seeds 0 1 --out runs/bench --results docs/results.md
+	$(BIN)/pf-slam bench car --seeds 0 --out runs/bench --processes multi --results docs/results.md
 
 lock: setup   ## re-pin requirements/constraints.txt from the current venv
 	@{ echo "# Lock file for the pip-only install: exact versions measured to work together (ROS 2 Jazzy wheels,"; \

@@ -119,6 +119,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--sweep-grid", type=int, nargs="*",
                    help="scaling: grid cells per side on intel_910 (default 500 1000 2000 4000)")
     b.add_argument("--plot-dir", default="docs/img", help="scaling: where the PNG plots go")
+    b.add_argument("--results", metavar="FILE",
+                   help="also write the table into its section of FILE (docs/results.md), with the machine, "
+                        "the command and the commit")
     return p
 
 
@@ -179,31 +182,44 @@ def _dispatch(args: argparse.Namespace) -> int:
             print(table)
         return 0
     if args.command == "bench":
-        if args.what == "messages":
-            from .bench import messages
-            print(messages.format_table(messages.run()))
-            fog = messages.measure_fog(10.0)
-            print("\nFOG at 1 kHz, publish + receive, wall s per s of data (one executor):")
-            print("| per-sample Vector3Stamped | FogBatch of 10 |\n|---:|---:|")
-            print(f"| {fog['vector3']:.3f} | {fog['batch']:.3f} |")
-        elif args.what == "car":
-            from .bench import car
-            print(car.main(args.out, tuple(args.seeds), args.duration, args.processes, args.particles,
-                           tuple(args.filter_seeds)))
-        elif args.what == "ceiling":
-            from .bench.ceiling import replay_ceiling
-            if not args.bag:
-                raise ValueError("bench ceiling needs --bag BAG")
-            print(json.dumps(replay_ceiling(args.bag), indent=2))
-        elif args.what == "scaling":
-            from .bench import scaling
-            print(scaling.main(args.data, args.out, args.sweep_particles, args.sweep_grid, args.plot_dir,
-                               args.seeds[0] if args.seeds else 0))
-        else:
-            from .bench import carmen
-            print(carmen.main(args.data, args.out, args.datasets, tuple(args.seeds), args.processes))
+        name, title, table = _bench(args)
+        print(table)
+        if args.results and name:
+            from .bench import results
+            results.update(args.results, name, results.section(name, title, table))
         return 0
     raise AssertionError(args.command)
+
+
+def _bench(args) -> tuple[str | None, str, str]:
+    """Run `pf-slam bench WHAT`: (results section name or None, its title, the printed table)."""
+    if args.what == "messages":
+        from .bench import messages
+        fog = messages.measure_fog(10.0)
+        table = (messages.format_table(messages.run())
+                 + "\n\nFOG at 1 kHz, publish + receive, wall s per s of data (one executor):\n\n"
+                 + "| per-sample Vector3Stamped | FogBatch of 10 |\n|---:|---:|\n"
+                 + f"| {fog['vector3']:.3f} | {fog['batch']:.3f} |")
+        return "messages", "Messages: ParticleArray layout, FOG stream", table
+    if args.what == "car":
+        from .bench import car
+        table = car.main(args.out, tuple(args.seeds), args.duration, args.processes, args.particles,
+                         tuple(args.filter_seeds))
+        return f"car_{args.processes}", f"The car: simulated drives ({args.processes} process)", table
+    if args.what == "ceiling":
+        from .bench.ceiling import replay_ceiling
+        if not args.bag:
+            raise ValueError("bench ceiling needs --bag BAG")
+        return None, "", json.dumps(replay_ceiling(args.bag), indent=2)
+    if args.what == "scaling":
+        from .bench import scaling
+        table = scaling.main(args.data, args.out, args.sweep_particles, args.sweep_grid, args.plot_dir,
+                             args.seeds[0] if args.seeds else 0)
+        return "scaling", "Scaling with particles and grid size", table
+    from .bench import carmen
+    table = carmen.main(args.data, args.out, args.datasets, tuple(args.seeds), args.processes)
+    return (f"carmen_{args.processes}", f"CARMEN logs, no parameter file (the indoor profile), "
+            f"{'one process' if args.processes == 'single' else 'one process per node'}", table)
 
 
 if __name__ == "__main__":
