@@ -26,7 +26,7 @@ bench: setup   ## prints tables (also written to runs/bench/carmen*.md and docs/
 	$(BIN)/pf-slam bench carmen --data ../shared/data --out runs/bench --seeds 0 --processes multi --results docs/results.md
 
 bench-scaling: setup   ## particles 10-1000 (intel_2726) and grids 500²-4000² (intel_910): wall, RTF, peak RSS, stage split; plots in docs/img (~25 min)
-	$(BIN)/pf-slam bench scaling --data ../shared/data --out runs/bench --results docs/results.md
+	$(BIN)/pf-slam bench scaling --data ../shared/data --out runs/bench --plot-dir docs/img --results docs/results.md
 
 bench-car: setup   ## five simulated 300 s car drives x filter seeds 0 and 1 (simulated once; ~6 min here): ATE, DR, map F1, RTF vs ceiling
 	$(BIN)/pf-slam bench car --seeds 0 1 2 3 4 --filter-seeds 0 1 --out runs/bench --results docs/results.md

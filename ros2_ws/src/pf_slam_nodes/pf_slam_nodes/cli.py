@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 from .graph import DEFAULT_INPUTS, RunError
 from .io.bag import BagError
@@ -107,7 +108,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--bag", help="ceiling: the bag to replay")
     b.add_argument("--duration", type=float, default=300.0, help="car: simulated drive length (s)")
     b.add_argument("--particles", type=int, help="car: filter.num_particles (default: kaist.yaml)")
-    b.add_argument("--data", default="../shared/data", help="datasets folder (carmen/ inside)")
+    b.add_argument("--data", help="carmen, scaling: the datasets folder (carmen/ inside); required for them")
     b.add_argument("--out", default="runs/bench", help="where bags, runs and tables go")
     b.add_argument("--datasets", nargs="*", help="subset of intel_910 intel_2726 mit-csail")
     b.add_argument("--seeds", type=int, nargs="*", default=[0])
@@ -118,7 +119,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="scaling: particle counts on intel_2726 (default 10 30 100 300 1000)")
     b.add_argument("--sweep-grid", type=int, nargs="*",
                    help="scaling: grid cells per side on intel_910 (default 500 1000 2000 4000)")
-    b.add_argument("--plot-dir", default="docs/img", help="scaling: where the PNG plots go")
+    b.add_argument("--plot-dir", help="scaling: where the PNG plots go (default: OUT/plots)")
     b.add_argument("--results", metavar="FILE",
                    help="also write the table into its section of FILE (docs/results.md), with the machine, "
                         "the command and the commit")
@@ -211,8 +212,11 @@ def _bench(args) -> tuple[str | None, str, str]:
         if not args.bag:
             raise ValueError("bench ceiling needs --bag BAG")
         return None, "", json.dumps(replay_ceiling(args.bag), indent=2)
+    if args.what in ("carmen", "scaling") and not args.data:
+        raise ValueError(f"bench {args.what} needs --data DIR (the datasets folder, with carmen/ inside)")
     if args.what == "scaling":
         from .bench import scaling
+        args.plot_dir = args.plot_dir or str(Path(args.out) / "plots")
         table = scaling.main(args.data, args.out, args.sweep_particles, args.sweep_grid, args.plot_dir,
                              args.seeds[0] if args.seeds else 0)
         return "scaling", "Scaling with particles and grid size", table
