@@ -293,13 +293,7 @@ class LogOddsGrid:
         hit_idx : numpy.ndarray
             int64 flat indices of beam endpoint cells (may repeat).
         """
-        pose = np.asarray(pose, dtype=np.float64).reshape(3)
-        if sensor_offset is not None:
-            pose = compose(pose, np.asarray(sensor_offset, dtype=np.float64).reshape(3))
-        r = np.asarray(ranges, dtype=np.float64).reshape(-1)
-        a = np.asarray(angles, dtype=np.float64).reshape(-1)
-        if r.shape != a.shape:
-            raise ValueError(f"ranges and angles must have the same length, got {r.shape} and {a.shape}")
+        pose, r, a = _scan_arrays(pose, ranges, angles, sensor_offset)
         return self._beams(pose, r, a, range_min_m, range_max_m, flat=True)
 
     def _beams(self, pose: np.ndarray, r: np.ndarray, a: np.ndarray, range_min_m: float,
@@ -368,13 +362,7 @@ class LogOddsGrid:
         ``range_max_usable_m`` and no hit; finite beams beyond ``range_max_m`` are ignored. Values are clipped to ``[clip_min, clip_max]``; cells
         outside the grid are never written.
         """
-        pose = np.asarray(pose, dtype=np.float64).reshape(3)
-        if sensor_offset is not None:
-            pose = compose(pose, np.asarray(sensor_offset, dtype=np.float64).reshape(3))
-        r = np.asarray(ranges, dtype=np.float64).reshape(-1)
-        a = np.asarray(angles, dtype=np.float64).reshape(-1)
-        if r.shape != a.shape:
-            raise ValueError(f"ranges and angles must have the same length, got {r.shape} and {a.shape}")
+        pose, r, a = _scan_arrays(pose, ranges, angles, sensor_offset)
         fx, fy, hx, hy = self._beams(pose, r, a, range_min_m, range_max_m, flat=False)
         self.last_growth = None
         if fx.size or hx.size:
@@ -470,3 +458,16 @@ class LogOddsGrid:
     def to_occupancy_map(self, bounds: Optional[Bounds] = None) -> OccupancyMap:
         """The (cropped) grid as an :class:`OccupancyMap` (what a ROS subscriber would get)."""
         return OccupancyMap(self.occupancy(bounds), self.resolution, self.bounds_origin(bounds))
+
+
+def _scan_arrays(pose, ranges, angles, sensor_offset) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sensor's pose (the vehicle pose composed with `sensor_offset`) and the scan as float64
+    arrays; ValueError if ranges and angles differ in length."""
+    pose = np.asarray(pose, dtype=np.float64).reshape(3)
+    if sensor_offset is not None:
+        pose = compose(pose, np.asarray(sensor_offset, dtype=np.float64).reshape(3))
+    r = np.asarray(ranges, dtype=np.float64).reshape(-1)
+    a = np.asarray(angles, dtype=np.float64).reshape(-1)
+    if r.shape != a.shape:
+        raise ValueError(f"ranges and angles must have the same length, got {r.shape} and {a.shape}")
+    return pose, r, a
