@@ -128,3 +128,11 @@ def test_builders():
         tf_static(0, [('a', 'b', (0, 0, 0), (0, 0, 0, 0))])
     with pytest.raises(ValueError):
         make_header(-1, 'x')
+
+
+def test_writer_creates_missing_parent_directories(tmp_path):
+    """`pf-slam convert carmen LOG bags_local/x` in a fresh clone (no bags_local yet) works."""
+    out = tmp_path / "not" / "yet" / "bag"
+    with open_writer(out) as w:
+        w.add_connection("/chatter", "std_msgs/msg/String")
+    assert (out / "metadata.yaml").is_file()

@@ -178,7 +178,7 @@ def open_writer(out_path: str | os.PathLike, storage: str = 'mcap') -> Iterator[
     """Create a new rosbag2 directory at ``out_path`` and yield a ``BagWriter``.
 
     ``storage`` is ``'mcap'`` (default) or ``'sqlite3'``. Refuses to touch an existing path
-    (``BagError``). The bag is closed (``metadata.yaml`` written) when the block ends, also
+    (``BagError``); missing parent directories are created. The bag is closed (``metadata.yaml`` written) when the block ends, also
     when it ends with an exception, so a partial bag stays readable.
     """
     if storage not in STORAGES:
@@ -187,8 +187,10 @@ def open_writer(out_path: str | os.PathLike, storage: str = 'mcap') -> Iterator[
     if path.exists():
         raise BagError(f'{path}: already exists; refusing to overwrite (remove it or choose '
                        'another output path)')
-    if not path.parent.is_dir():
-        raise BagError(f'{path}: parent directory {path.parent} does not exist')
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)  # `convert … bags_local/x` with no bags_local yet
+    except OSError as exc:
+        raise BagError(f'{path}: cannot create its parent directory: {exc}') from exc
     try:
         writer = Writer(path, version=BAG_VERSION, storage_plugin=STORAGES[storage])
         writer.open()
