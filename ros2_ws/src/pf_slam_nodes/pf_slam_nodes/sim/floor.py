@@ -15,15 +15,14 @@ from pathlib import Path
 
 import numpy as np
 
-from pf_slam_nodes.io.bag import BagError, laser_scan, odometry, open_writer, tf_static
+from pf_slam_nodes.io.bag import BagError
 from pf_slam_nodes.io.mapfile import write_map
 from pf_slam_nodes.io.trajectory import write_tum
 
 from . import indoor
-from .indoor import (ANGLE_INCREMENT_RAD, ANGLE_MIN_RAD, BASE_FRAME, EPOCH_NS, LASER_FRAME, ODOM_FRAME,
-                     ODOM_TOPIC, RANGE_MAX_M, RANGE_MIN_M, SCAN_RATE_HZ, SCAN_TOPIC, SIM_RATE_HZ,
-                     TF_STATIC_TOPIC, IndoorWorld, SimResult, _box_corners, _loop_primitives,
-                     rasterise_world, simulate_odometry, simulate_scans)
+from .indoor import (BASE_FRAME, EPOCH_NS, LASER_FRAME, RANGE_MAX_M, SCAN_RATE_HZ, SIM_RATE_HZ, IndoorWorld,
+                     SimResult, _box_corners, _loop_primitives, rasterise_world, simulate_odometry,
+                     simulate_scans)
 from .paths import pose_on_path
 
 __all__ = ['FLOOR_BAG_NAME', 'floor_world', 'plan_floor_drive', 'simulate_floor']
@@ -122,31 +121,10 @@ def simulate_floor(out_dir: str | os.PathLike, seed: int = 0, length_m: float = 
         near = ((np.maximum(seg[:, 0], seg[:, 2]) >= lo[0]) & (np.minimum(seg[:, 0], seg[:, 2]) <= hi[0])
                 & (np.maximum(seg[:, 1], seg[:, 3]) >= lo[1]) & (np.minimum(seg[:, 1], seg[:, 3]) <= hi[1]))
         ranges[k0:k0 + 50] = simulate_scans(truth[ks], seg[near], laser_rng)
-    step_ns = 1_000_000_000 // SIM_RATE_HZ
-    stamps_ns = EPOCH_NS + np.arange(len(truth), dtype=np.int64) * step_ns
-    dt = 1.0 / SIM_RATE_HZ
-    dth = np.diff(odom[:, 2])
-    twist_w = np.concatenate([[0.0], np.arctan2(np.sin(dth), np.cos(dth)) / dt])
-    twist_v = np.concatenate([[0.0], np.hypot(*np.diff(odom[:, :2], axis=0).T) / dt])
-    n_odom = 0
-    with open_writer(bag_path, storage=storage) as bag:
-        bag.add_connection(TF_STATIC_TOPIC, 'tf2_msgs/msg/TFMessage')
-        bag.add_connection(ODOM_TOPIC, 'nav_msgs/msg/Odometry')
-        bag.add_connection(SCAN_TOPIC, 'sensor_msgs/msg/LaserScan')
-        bag.set_custom_data('pf_slam.sim', f'floor {length_m:g}x{width_m:g} m seed={int(seed)}')
-        t0 = int(stamps_ns[0])
-        bag.write(TF_STATIC_TOPIC, t0, tf_static(t0, [(BASE_FRAME, LASER_FRAME, (0.0, 0.0, 0.0),
-                                                        (0.0, 0.0, 0.0, 1.0))]))
-        for i in range(len(truth)):
-            stamp = int(stamps_ns[i])
-            if i % odom_step == 0:
-                bag.write(ODOM_TOPIC, stamp, odometry(stamp, ODOM_FRAME, BASE_FRAME, odom[i],
-                                                      (twist_v[i], twist_w[i])))
-                n_odom += 1
-            if i % scan_step == 0:
-                bag.write(SCAN_TOPIC, stamp, laser_scan(stamp, LASER_FRAME, ANGLE_MIN_RAD, ANGLE_INCREMENT_RAD,
-                                                        ranges[i // scan_step], RANGE_MIN_M, RANGE_MAX_M,
-                                                        scan_time=1.0 / SCAN_RATE_HZ))
+    stamps_ns = EPOCH_NS + np.arange(len(truth), dtype=np.int64) * (1_000_000_000 // SIM_RATE_HZ)
+    n_odom = indoor.write_sim_bag(bag_path, storage, stamps_ns, odom, ranges, odom_step, scan_step,
+                                  [(BASE_FRAME, LASER_FRAME, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))], LASER_FRAME,
+                                  f'floor {length_m:g}x{width_m:g} m seed={int(seed)}')
     gt_path = out / f'{FLOOR_BAG_NAME}_ground_truth.tum'
     write_tum(gt_path, stamps_ns[scan_idx] / 1e9, truth[scan_idx])
     occ, origin = rasterise_world(world, 0.5)

@@ -561,34 +561,11 @@ def simulate_indoor(out_dir: str | os.PathLike, seed: int = 0, duration_s: float
     mount = mount_pose(chain) if laser_mount else None
     laser_frame = chain[-1][1]
     ranges = simulate_scans(truth[scan_idx], world.segments, laser_rng, mount)
-    step_ns = 1_000_000_000 // SIM_RATE_HZ
-    stamps_ns = EPOCH_NS + np.arange(len(t_s), dtype=np.int64) * step_ns
-    dt = 1.0 / SIM_RATE_HZ
-    dth = np.diff(odom[:, 2])
-    twist_w = np.concatenate([[0.0], np.arctan2(np.sin(dth), np.cos(dth)) / dt])
-    twist_v = np.concatenate([[0.0], np.hypot(*np.diff(odom[:, :2], axis=0).T) / dt])
-
-    n_odom = 0
-    with open_writer(bag_path, storage=storage) as bag:
-        bag.add_connection(TF_STATIC_TOPIC, 'tf2_msgs/msg/TFMessage')
-        bag.add_connection(ODOM_TOPIC, 'nav_msgs/msg/Odometry')
-        bag.add_connection(SCAN_TOPIC, 'sensor_msgs/msg/LaserScan')
-        bag.set_custom_data('pf_slam.sim', f'indoor seed={int(seed)} '
-                            f'duration_s={n_scans / SCAN_RATE_HZ:g} odom_rate_hz={odom_rate_hz}')
-        t0 = int(stamps_ns[0])
-        bag.write(TF_STATIC_TOPIC, t0, tf_static(
-            t0, [(parent, child, tuple(float(v) for v in xyz), rpy_to_quat(rpy)) for parent, child, xyz, rpy in chain]))
-        for i in range(len(t_s)):
-            stamp = int(stamps_ns[i])
-            if i % odom_step == 0:
-                bag.write(ODOM_TOPIC, stamp, odometry(
-                    stamp, ODOM_FRAME, BASE_FRAME, odom[i], (twist_v[i], twist_w[i])))
-                n_odom += 1
-            if i % scan_step == 0:
-                bag.write(SCAN_TOPIC, stamp, laser_scan(
-                    stamp, laser_frame, ANGLE_MIN_RAD, ANGLE_INCREMENT_RAD,
-                    ranges[i // scan_step], RANGE_MIN_M, RANGE_MAX_M,
-                    scan_time=1.0 / SCAN_RATE_HZ))
+    stamps_ns = EPOCH_NS + np.arange(len(t_s), dtype=np.int64) * (1_000_000_000 // SIM_RATE_HZ)
+    transforms = [(parent, child, tuple(float(v) for v in xyz), rpy_to_quat(rpy)) for parent, child, xyz, rpy in chain]
+    n_odom = write_sim_bag(bag_path, storage, stamps_ns, odom, ranges, odom_step, scan_step, transforms,
+                           laser_frame, f'indoor seed={int(seed)} duration_s={n_scans / SCAN_RATE_HZ:g} '
+                           f'odom_rate_hz={odom_rate_hz}')
 
     gt_path = out / GROUND_TRUTH_NAME
     write_tum(gt_path, stamps_ns[scan_idx] / 1e9, truth[scan_idx])
@@ -601,6 +578,38 @@ def simulate_indoor(out_dir: str | os.PathLike, seed: int = 0, duration_s: float
         n_odom=n_odom,
         path_length_m=float(np.hypot(*np.diff(truth[:, :2], axis=0).T).sum()),
         odom_drift_m=float(np.hypot(*(odom[last, :2] - truth[last, :2]))))
+
+
+def write_sim_bag(bag_path: Path, storage: str, stamps_ns: np.ndarray, odom: np.ndarray, ranges: np.ndarray,
+                  odom_step: int, scan_step: int, transforms: list, laser_frame: str, sim_tag: str) -> int:
+    """A simulated drive as a rosbag2: /tf_static (`transforms`: (parent, child, xyz, quat)),
+    /odom every `odom_step`-th sample of `odom` (twist from its differences), /scan every
+    `scan_step`-th (`ranges` one row per scan); custom data ``pf_slam.sim`` = `sim_tag`.
+    Returns the number of /odom messages."""
+    dt = 1.0 / SIM_RATE_HZ
+    dth = np.diff(odom[:, 2])
+    twist_w = np.concatenate([[0.0], np.arctan2(np.sin(dth), np.cos(dth)) / dt])
+    twist_v = np.concatenate([[0.0], np.hypot(*np.diff(odom[:, :2], axis=0).T) / dt])
+    n_odom = 0
+    with open_writer(bag_path, storage=storage) as bag:
+        bag.add_connection(TF_STATIC_TOPIC, 'tf2_msgs/msg/TFMessage')
+        bag.add_connection(ODOM_TOPIC, 'nav_msgs/msg/Odometry')
+        bag.add_connection(SCAN_TOPIC, 'sensor_msgs/msg/LaserScan')
+        bag.set_custom_data('pf_slam.sim', sim_tag)
+        t0 = int(stamps_ns[0])
+        bag.write(TF_STATIC_TOPIC, t0, tf_static(t0, transforms))
+        for i in range(len(stamps_ns)):
+            stamp = int(stamps_ns[i])
+            if i % odom_step == 0:
+                bag.write(ODOM_TOPIC, stamp, odometry(
+                    stamp, ODOM_FRAME, BASE_FRAME, odom[i], (twist_v[i], twist_w[i])))
+                n_odom += 1
+            if i % scan_step == 0:
+                bag.write(SCAN_TOPIC, stamp, laser_scan(
+                    stamp, laser_frame, ANGLE_MIN_RAD, ANGLE_INCREMENT_RAD,
+                    ranges[i // scan_step], RANGE_MIN_M, RANGE_MAX_M,
+                    scan_time=1.0 / SCAN_RATE_HZ))
+    return n_odom
 
 
 # --------------------------------------------------------------------------------------------
