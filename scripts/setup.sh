@@ -6,6 +6,7 @@
 #   3. ros2_ws/src/pf_slam_interfaces built with CMake and installed into the venv
 #      (and tf2_msgs/TFMessage from ros2_ws/fallback where the wheels lack tf2_msgs);
 #   4. ros2_ws/src/pf_slam_nodes installed (editable): `pf-slam` and one script per node.
+#   5. ros2_ws/src/pf_slam_tools installed (editable): simulators and benches (development only).
 # Each step records a hash of its inputs under .venv/.pf_slam/ and is skipped when nothing
 # changed, so a second run takes about a second. Called by `make setup`, `make run`, `make test`.
 set -euo pipefail
@@ -121,5 +122,14 @@ if ! up_to_date nodes "$nodes_hash" || [ ! -x "$VENV/bin/pf-slam" ]; then
   "$VPY" -m pip install --disable-pip-version-check -q --no-deps --no-build-isolation --use-pep517 \
       -e "$ROOT/ros2_ws/src/pf_slam_nodes"
   mark nodes "$nodes_hash"
+fi
+
+# 5. the development package: simulators and benches (pf-slam simulate*, texture, bench) -------
+tools_hash="$(hash_of "$nodes_hash" "$ROOT/ros2_ws/src/pf_slam_tools/setup.py")"
+if ! up_to_date tools "$tools_hash"; then
+  say "installing pf_slam_tools (editable)"
+  "$VPY" -m pip install --disable-pip-version-check -q --no-deps --no-build-isolation --use-pep517 \
+      -e "$ROOT/ros2_ws/src/pf_slam_tools"
+  mark tools "$tools_hash"
 fi
 say "ready: $VENV"

@@ -12,8 +12,8 @@ pytest.importorskip("rclpy")
 from pf_slam_nodes.io import evaluation  # noqa: E402
 from pf_slam_nodes.graph import run  # noqa: E402
 from pf_slam_nodes.io.mapfile import read_map  # noqa: E402
-from pf_slam_nodes.sim.floor import floor_world, simulate_floor  # noqa: E402
-from pf_slam_nodes.sim.indoor import distance_to_segments  # noqa: E402
+from pf_slam_tools.sim.floor import floor_world, simulate_floor  # noqa: E402
+from pf_slam_tools.sim.indoor import distance_to_segments  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 PARAMS = ROOT / "ros2_ws" / "src" / "pf_slam_nodes" / "config" / "sim_indoor.yaml"  # grid 40 m x 40 m

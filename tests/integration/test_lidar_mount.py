@@ -21,7 +21,7 @@ from pf_slam_nodes.graph import run  # noqa: E402
 from pf_slam_nodes.io.bag import bag_info, deserialize, open_writer, read_bag, tf_static  # noqa: E402
 from pf_slam_nodes.io.mapfile import read_map  # noqa: E402
 from pf_slam_nodes.io.trajectory import read_trajectory  # noqa: E402
-from pf_slam_nodes.sim.indoor import simulate_indoor  # noqa: E402
+from pf_slam_tools.sim.indoor import simulate_indoor  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLE = ROOT / "bags" / "sample_indoor"

@@ -1,10 +1,10 @@
 """The car bench's table, targets line, cached bags and ground-truth FOG bias (no graph run)."""
 import numpy as np
 
-from pf_slam_nodes.bench import car
+from pf_slam_tools.bench import car
 from pf_slam_nodes.io.bag import bag_info
 from pf_slam_nodes.io.kaist import convert_kaist
-from pf_slam_nodes.sim.car import simulate_car
+from pf_slam_tools.sim.car import simulate_car
 
 
 def test_true_fog_bias_per_second_and_table(tmp_path):

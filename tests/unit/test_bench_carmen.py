@@ -1,5 +1,5 @@
 """The CARMEN bench's targets lines (no graph run)."""
-from pf_slam_nodes.bench import carmen
+from pf_slam_tools.bench import carmen
 
 
 def _row(dataset, seed, wall, rel=None, ate=None):

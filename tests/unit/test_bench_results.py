@@ -1,7 +1,7 @@
 """docs/results.md sections: a bench rewrites its own section and leaves the rest as it was."""
 from __future__ import annotations
 
-from pf_slam_nodes.bench import results
+from pf_slam_tools.bench import results
 
 
 def test_a_bench_replaces_its_section_and_keeps_the_others(tmp_path):

@@ -4,7 +4,7 @@ import time
 import cv2
 import numpy as np
 
-from pf_slam_nodes.bench import scaling
+from pf_slam_tools.bench import scaling
 from pf_slam_nodes.core.stages import STAGE_STEPS, StageClock, stage_seconds
 
 

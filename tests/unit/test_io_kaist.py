@@ -508,7 +508,7 @@ def _read_csv(path: Path) -> tuple[np.ndarray, np.ndarray]:
 @needs_data
 def test_round_trip_simulated_drive(tmp_path):
     """A 5 s drive of the car simulator (sim/car.py), converted: every row one message."""
-    car = pytest.importorskip('pf_slam_nodes.sim.car')
+    car = pytest.importorskip('pf_slam_tools.sim.car')
     sim = car.simulate_car(tmp_path / 'sim', seed=3, duration_s=5.0, stereo_rate_hz=0.4)
     rep = convert_kaist(tmp_path / 'sim', tmp_path / 'bag')
     assert rep.skipped == {} and rep.warnings == []

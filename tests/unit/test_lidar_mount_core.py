@@ -16,7 +16,7 @@ from pf_slam_nodes.core.stages import MappingStage
 from pf_slam_nodes.graph import LidarMount, lidar_mount
 from pf_slam_nodes.io.bag import bag_info, laser_scan, open_writer, tf_static
 from pf_slam_nodes.core.geometry import rpy_to_quat
-from pf_slam_nodes.sim.indoor import beam_angles, distance_to_segments, mount_pose, office_world, ray_cast
+from pf_slam_tools.sim.indoor import beam_angles, distance_to_segments, mount_pose, office_world, ray_cast
 
 PI = math.pi
 INC = math.radians(1.0)

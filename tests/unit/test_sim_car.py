@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from pf_slam_nodes.io.mapfile import read_map
-from pf_slam_nodes.sim import car, car_sensors as cs
-from pf_slam_nodes.sim.car_params import PARAM_FILES, extrinsic, yaml_matrix
+from pf_slam_tools.sim import car, car_sensors as cs
+from pf_slam_tools.sim.car_params import PARAM_FILES, extrinsic, yaml_matrix
 
 REAL_PARAM = Path(__file__).resolve().parents[3] / 'shared' / 'data' / 'kaist_sample' / 'param'
 DURATION_S = 30.0

@@ -11,8 +11,8 @@ from pf_slam_nodes.io.bag import BagError, bag_info, deserialize, read_bag, stam
 from pf_slam_nodes.io.mapfile import read_map
 from pf_slam_nodes.core.geometry import quat_to_yaw
 from pf_slam_nodes.io.trajectory import read_trajectory
-from pf_slam_nodes.sim import indoor
-from pf_slam_nodes.sim.indoor import (
+from pf_slam_tools.sim import indoor
+from pf_slam_tools.sim.indoor import (
     EPOCH_NS, N_BEAMS, RANGE_MAX_M, beam_angles, distance_to_segments, office_world,
     plan_drive, ray_cast, simulate_indoor)
 

@@ -271,8 +271,8 @@ def test_simulated_drive_colour_error(tmp_path):
     simulate), ground-truth poses. Measured: mean abs RGB error 5.0, coverage 0.94
     (docs/texture.md has the 60 s drive: 5.7 and 0.89). Bounds with margin for other seeds /
     OpenCV builds: < 8, > 0.8."""
-    from pf_slam_nodes.bench.texture import texture_from_dataset
-    from pf_slam_nodes.sim.car import simulate_car
+    from pf_slam_tools.bench.texture import texture_from_dataset
+    from pf_slam_tools.sim.car import simulate_car
 
     ds = tmp_path / "sim"
     simulate_car(ds, seed=0, duration_s=3.0, stereo_rate_hz=1.0)

@@ -84,12 +84,16 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--json", action="store_true", help="print JSON")
 
     si = sub.add_parser("simulate-indoor", help="write the seeded indoor sample bag with ground truth")
-    from .sim.indoor import add_arguments
-    add_arguments(si)
-
     sc = sub.add_parser("simulate", help="write a seeded KAIST-layout car dataset with ground truth")
-    from .sim.car import add_arguments as add_car_arguments
-    add_car_arguments(sc)
+    try:  # simulators and benches are the development package pf_slam_tools (installed by make setup)
+        from pf_slam_tools.sim.car import add_arguments as add_car_arguments
+        from pf_slam_tools.sim.indoor import add_arguments
+    except ModuleNotFoundError:
+        for p in (si, sc):
+            p.add_argument("args", nargs=argparse.REMAINDER)
+    else:
+        add_arguments(si)
+        add_car_arguments(sc)
 
     t = sub.add_parser("texture", add_help=False,
                        help="texture map offline: a simulated drive vs its floor truth, or the real stereo pair "
@@ -133,6 +137,12 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except ModuleNotFoundError as e:
+        if not (e.name or "").startswith("pf_slam_tools"):
+            raise
+        print(f"pf-slam {args.command}: error: needs the development package pf_slam_tools "
+              "(simulators, benches): pip install -e ros2_ws/src/pf_slam_tools, or make setup", file=sys.stderr)
+        return 1
     except (RunError, BagError, ValueError, OSError) as e:  # known failures: one line, no traceback
         print(f"pf-slam {args.command}: error: {e}", file=sys.stderr)
         return 1
@@ -152,7 +162,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         print(rep.summary())
         return 0
     if args.command == "texture":
-        from .bench.texture import main as texture_main
+        from pf_slam_tools.bench.texture import main as texture_main
         return texture_main(args.args)
     if args.command == "run":
         from .graph import run_cli
@@ -169,10 +179,10 @@ def _dispatch(args: argparse.Namespace) -> int:
         print(json.dumps(res, indent=2) if args.json else format_evaluation(res))
         return 0
     if args.command == "simulate-indoor":
-        from .sim.indoor import run_args
+        from pf_slam_tools.sim.indoor import run_args
         return run_args(args)
     if args.command == "simulate":
-        from .sim.car import run_args as run_car
+        from pf_slam_tools.sim.car import run_args as run_car
         return run_car(args)
     if args.command == "params":
         from . import paramdoc
@@ -186,7 +196,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         name, title, table = _bench(args)
         print(table)
         if args.results and name:
-            from .bench import results
+            from pf_slam_tools.bench import results
             results.update(args.results, name, results.section(name, title, table))
         return 0
     raise AssertionError(args.command)
@@ -195,7 +205,7 @@ def _dispatch(args: argparse.Namespace) -> int:
 def _bench(args) -> tuple[str | None, str, str]:
     """Run `pf-slam bench WHAT`: (results section name or None, its title, the printed table)."""
     if args.what == "messages":
-        from .bench import messages
+        from pf_slam_tools.bench import messages
         fog = messages.measure_fog(10.0)
         table = (messages.format_table(messages.run())
                  + "\n\nFOG at 1 kHz, publish + receive, wall s per s of data (one executor):\n\n"
@@ -203,24 +213,24 @@ def _bench(args) -> tuple[str | None, str, str]:
                  + f"| {fog['vector3']:.3f} | {fog['batch']:.3f} |")
         return "messages", "Messages: ParticleArray layout, FOG stream", table
     if args.what == "car":
-        from .bench import car
+        from pf_slam_tools.bench import car
         table = car.main(args.out, tuple(args.seeds), args.duration, args.processes, args.particles,
                          tuple(args.filter_seeds))
         return f"car_{args.processes}", f"The car: simulated drives ({args.processes} process)", table
     if args.what == "ceiling":
-        from .bench.ceiling import replay_ceiling
+        from pf_slam_tools.bench.ceiling import replay_ceiling
         if not args.bag:
             raise ValueError("bench ceiling needs --bag BAG")
         return None, "", json.dumps(replay_ceiling(args.bag), indent=2)
     if args.what in ("carmen", "scaling") and not args.data:
         raise ValueError(f"bench {args.what} needs --data DIR (the datasets folder, with carmen/ inside)")
     if args.what == "scaling":
-        from .bench import scaling
+        from pf_slam_tools.bench import scaling
         args.plot_dir = args.plot_dir or str(Path(args.out) / "plots")
         table = scaling.main(args.data, args.out, args.sweep_particles, args.sweep_grid, args.plot_dir,
                              args.seeds[0] if args.seeds else 0)
         return "scaling", "Scaling with particles and grid size", table
-    from .bench import carmen
+    from pf_slam_tools.bench import carmen
     table = carmen.main(args.data, args.out, args.datasets, tuple(args.seeds), args.processes)
     return (f"carmen_{args.processes}", f"CARMEN logs, no parameter file (the indoor profile), "
             f"{'one process' if args.processes == 'single' else 'one process per node'}", table)

@@ -33,7 +33,7 @@ class TextureConfig(_ConfigBase):
     """Stereo texture mapping (:class:`StereoTexturer`, :class:`TextureMap`).
 
     Stereo matching is OpenCV ``StereoSGBM``. The defaults come from
-    ``python -m pf_slam_nodes.bench.texture {real,sim} ... --sweep`` (``docs/texture.md``):
+    ``python -m pf_slam_tools.bench.texture {real,sim} ... --sweep`` (``docs/texture.md``):
 
     * Pre-filter: on the real KAIST pair (dark asphalt, ego-lane road region 5-15 m ahead)
       full resolution gives 52 % valid disparity; CLAHE / histogram equalisation *lower* the

@@ -1,4 +1,4 @@
-"""World and drive of the car simulator (``pf_slam_nodes.sim.car``): a seeded city block grid.
+"""World and drive of the car simulator (``pf_slam_tools.sim.car``): a seeded city block grid.
 
 Everything is built in a "grid" frame and then translated so that the vehicle's true start
 pose is the origin with heading 0 (``+x`` = east along the start street): that frame is the

@@ -12,7 +12,7 @@ from __future__ import annotations
 import contextlib
 import time
 
-from ..io.bag import bag_info
+from pf_slam_nodes.io.bag import bag_info
 
 
 def _sink_class():
@@ -20,9 +20,9 @@ def _sink_class():
     from rclpy.node import Node
     from rclpy.serialization import serialize_message
 
-    from ..nodes.bag_replay import message_class
-    from ..nodes.common import announce_when_matched
-    from ..ros import qos, topics
+    from pf_slam_nodes.nodes.bag_replay import message_class
+    from pf_slam_nodes.nodes.common import announce_when_matched
+    from pf_slam_nodes.ros import qos, topics
 
     class CountingSink(Node):
         """Subscribes to `subscribe` (topic -> type name) raw and counts; optionally answers
@@ -59,9 +59,9 @@ def replay_ceiling(bag: str, executor: str = "events", domain_id: int | None = N
     On an isolated domain (ros.domain.ros_context) unless `domain_id` / ROS_DOMAIN_ID names one."""
     from rclpy.parameter import Parameter
 
-    from ..graph import make_executor
-    from ..nodes.bag_replay import BagReplay
-    from ..ros.domain import ros_context
+    from pf_slam_nodes.graph import make_executor
+    from pf_slam_nodes.nodes.bag_replay import BagReplay
+    from pf_slam_nodes.ros.domain import ros_context
 
     info = bag_info(bag)
     tp = {t: m for t, (m, _) in info["topics"].items()}

@@ -2,7 +2,7 @@
 
 Writes the project's own small sample (``make run`` replays ``bags/sample_indoor``)::
 
-    python -m pf_slam_nodes.sim.indoor --out bags --seed 0 --duration 60
+    python -m pf_slam_tools.sim.indoor --out bags --seed 0 --duration 60
 
 * **World** -- a 20 m x 15 m office floor of wall segments: outer walls, a 2 m wide east-west
   corridor, three rooms south of it and two north of it (1.2 m door gaps, one door between the
@@ -630,9 +630,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """Stand-alone parser of ``python -m pf_slam_nodes.sim.indoor``."""
+    """Stand-alone parser of ``python -m pf_slam_tools.sim.indoor``."""
     return add_arguments(argparse.ArgumentParser(
-        prog='python -m pf_slam_nodes.sim.indoor',
+        prog='python -m pf_slam_tools.sim.indoor',
         description='Write the seeded indoor sample bag, its ground truth and map.'))
 
 
@@ -654,7 +654,7 @@ def run_args(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m pf_slam_nodes.sim.indoor --out DIR --seed N --duration S``."""
+    """``python -m pf_slam_tools.sim.indoor --out DIR --seed N --duration S``."""
     return run_args(build_parser().parse_args(argv))
 
 

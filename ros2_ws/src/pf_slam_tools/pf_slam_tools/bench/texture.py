@@ -1,8 +1,8 @@
 """Texture-map benchmarks: a simulated drive against its ground-truth floor, and the real pair.
 
-    python -m pf_slam_nodes.bench.texture sim DATASET_DIR --out OUT [--trajectory TUM]
-    python -m pf_slam_nodes.bench.texture real ../shared/data/kaist_sample --out OUT
-    python -m pf_slam_nodes.bench.texture {sim DATASET_DIR | real KAIST_DIR} --out OUT --sweep
+    python -m pf_slam_tools.bench.texture sim DATASET_DIR --out OUT [--trajectory TUM]
+    python -m pf_slam_tools.bench.texture real ../shared/data/kaist_sample --out OUT
+    python -m pf_slam_tools.bench.texture {sim DATASET_DIR | real KAIST_DIR} --out OUT --sweep
 
 ``sim``: runs :class:`pf_slam_nodes.core.texture.StereoTexturer` over every stereo pair of a
 dataset in the KAIST layout written by ``pf-slam simulate`` (poses: ``ground_truth/poses.csv``
@@ -34,12 +34,12 @@ from typing import Optional
 import cv2
 import numpy as np
 
-from ..core.texture import (StereoTexturer, TextureConfig, TextureMap, colour_error,
+from pf_slam_nodes.core.texture import (StereoTexturer, TextureConfig, TextureMap, colour_error,
                             interpolate_poses, measure_stereo_pair, north_up_bgr,
                             overlay_occupancy, visible_ground_mask)
-from ..io.calib import read_stereo_rig
-from ..io.texture_files import read_floor_texture, write_texture_pngs
-from ..io.trajectory import read_trajectory
+from pf_slam_nodes.io.calib import read_stereo_rig
+from pf_slam_nodes.io.texture_files import read_floor_texture, write_texture_pngs
+from pf_slam_nodes.io.trajectory import read_trajectory
 
 __all__ = ['SWEEP', 'main', 'measure_real_pair', 'sweep_real', 'sweep_sim_bias',
            'texture_from_dataset']
@@ -80,7 +80,7 @@ def texture_from_dataset(dataset_dir: str | Path, out_dir: str | Path | None = N
         ``ms_per_pair`` (mean, and ``ms_per_pair_p90``), per-stage means ``ms_stages``,
         ``plane_fitted_fraction``, ``rectified_here``, ``tiles``, ``memory_mb``.
     """
-    from ..io.mapfile import read_map
+    from pf_slam_nodes.io.mapfile import read_map
 
     root = Path(dataset_dir)
     cfg = cfg or TextureConfig()
@@ -201,7 +201,7 @@ def measure_real_pair(kaist_dir: str | Path, out_dir: str | Path | None = None,
         cv2.imwrite(str(o / 'disparity.png'), img)
         tex = StereoTexturer(rig, cfg)
         tex._rectify = m.rectified_here  # same decision, no second ORB check
-        from ..core.texture import debayer
+        from pf_slam_nodes.core.texture import debayer
         lrgb = debayer(left)
         if m.rectified_here:
             lrgb = cv2.remap(lrgb, *rig.rectify_maps('left'), cv2.INTER_LINEAR)

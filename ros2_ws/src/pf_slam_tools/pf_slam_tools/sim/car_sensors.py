@@ -13,8 +13,8 @@ import math
 import cv2
 import numpy as np
 
-from pf_slam_nodes.sim.car_params import PARAM_FILES, extrinsic, yaml_matrix
-from pf_slam_nodes.sim.car_world import KIND_BUILDING, KIND_CAR, KIND_CROWN, CarWorld
+from pf_slam_tools.sim.car_params import PARAM_FILES, extrinsic, yaml_matrix
+from pf_slam_tools.sim.car_world import KIND_BUILDING, KIND_CAR, KIND_CROWN, CarWorld
 
 __all__ = [
     'IMAGE_H', 'IMAGE_W', 'LIDAR_ANGLES_RAD', 'LIDAR_MAX_M', 'N_LIDAR_BEAMS',

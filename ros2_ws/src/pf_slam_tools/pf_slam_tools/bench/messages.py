@@ -15,8 +15,8 @@ from rclpy.executors import SingleThreadedExecutor
 
 from pf_slam_interfaces.msg import Particle, ParticleArray, ParticleArrayNested
 
-from ..ros import convert, qos
-from ..ros.domain import ros_context
+from pf_slam_nodes.ros import convert, qos
+from pf_slam_nodes.ros.domain import ros_context
 
 
 def _soa_msg(poses: np.ndarray, lw: np.ndarray) -> ParticleArray:

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import math
 
-from ..core.stages import STAGE_STEPS
+from pf_slam_nodes.core.stages import STAGE_STEPS
 
 #: the per-scan split of summary.json's ``stage_ms_per_scan`` (single process)
 STAGE_COLUMNS = STAGE_STEPS + ("messaging",)

@@ -1,6 +1,6 @@
 """Seeded car simulator: a city drive written in the KAIST Urban (ECE276A) data set layout.
 
-    python -m pf_slam_nodes.sim.car --out DIR --seed 0 --duration 300
+    python -m pf_slam_tools.sim.car --out DIR --seed 0 --duration 300
 
 writes exactly the layout of the real car data set (``pf_slam_nodes.io.kaist`` reads both)::
 
@@ -62,9 +62,9 @@ import cv2
 import numpy as np
 
 from pf_slam_nodes.io.mapfile import write_map
-from pf_slam_nodes.sim import car_sensors as cs
-from pf_slam_nodes.sim.car_params import PARAM_FILES
-from pf_slam_nodes.sim.car_world import (
+from pf_slam_tools.sim import car_sensors as cs
+from pf_slam_tools.sim.car_params import PARAM_FILES
+from pf_slam_tools.sim.car_world import (
     CarWorld, Drive, build_world, occupancy_grid, plan_route, shift_world)
 
 __all__ = ['CarSimResult', 'EPOCH_NS', 'add_arguments', 'build_parser', 'main', 'run_args',
@@ -299,9 +299,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """Stand-alone parser of ``python -m pf_slam_nodes.sim.car``."""
+    """Stand-alone parser of ``python -m pf_slam_tools.sim.car``."""
     return add_arguments(argparse.ArgumentParser(
-        prog='python -m pf_slam_nodes.sim.car',
+        prog='python -m pf_slam_tools.sim.car',
         description='Write a seeded city drive in the KAIST car data set layout.'))
 
 
@@ -322,7 +322,7 @@ def run_args(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m pf_slam_nodes.sim.car --out DIR --seed N --duration S``."""
+    """``python -m pf_slam_tools.sim.car --out DIR --seed N --duration S``."""
     return run_args(build_parser().parse_args(argv))
 
 

@@ -3,7 +3,7 @@ driven along two of its sides, from one corner to the opposite one.
 
 For the map that grows (``grid.size_*`` is only where it starts): the drive explores the whole
 bounding box of the floor, far beyond a 100 m grid. Same laser, odometry model and bag layout as
-:mod:`pf_slam_nodes.sim.indoor` (``pf-slam simulate-indoor --world floor``); the office sample is
+:mod:`pf_slam_tools.sim.indoor` (``pf-slam simulate-indoor --world floor``); the office sample is
 not touched by this module.
 """
 from __future__ import annotations

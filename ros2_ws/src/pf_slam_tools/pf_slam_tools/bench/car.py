@@ -16,10 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core import metrics
-from ..core.odometry import GyroBuffer, WheelOdometryIntegrator
-from ..io.calib import parse_encoder_params
-from ..io.trajectory import read_trajectory, write_tum
+from pf_slam_nodes.core import metrics
+from pf_slam_nodes.core.odometry import GyroBuffer, WheelOdometryIntegrator
+from pf_slam_nodes.io.calib import parse_encoder_params
+from pf_slam_nodes.io.trajectory import read_trajectory, write_tum
 from . import stage_table
 
 KAIST_YAML = Path(__file__).resolve().parents[2] / "config" / "kaist.yaml"
@@ -75,8 +75,8 @@ def _bench_bag(data: Path, bag: Path) -> Path:
     """The drive's bag, converted once without stereo images. A cached bag is reused only if it
     holds the drive's messages and no images (one that carries images also runs the texture
     node and times something else); otherwise it is converted again."""
-    from ..io.bag import bag_info
-    from ..io.kaist import convert_kaist
+    from pf_slam_nodes.io.bag import bag_info
+    from pf_slam_nodes.io.kaist import convert_kaist
 
     if (bag / "metadata.yaml").is_file():
         topics = bag_info(bag)["topics"]
@@ -97,10 +97,10 @@ def bench(out_dir: Path, seeds=(0,), duration_s: float = 300.0, processes: str =
     random stream, ``filter.seed``). The filter is chaotic on these drives (README), so the
     settings are judged on several of each. Dead reckoning, the ceiling and the ground truth are
     computed once per drive."""
-    from ..bench.ceiling import replay_ceiling
-    from ..graph import run
-    from ..io.mapfile import read_map
-    from ..sim.car import simulate_car
+    from pf_slam_tools.bench.ceiling import replay_ceiling
+    from pf_slam_nodes.graph import run
+    from pf_slam_nodes.io.mapfile import read_map
+    from pf_slam_tools.sim.car import simulate_car
 
     rows = []
     for seed in seeds:

@@ -11,9 +11,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..io.evaluation import evaluate
-from ..graph import run
-from ..io.convert import convert_carmen
+from pf_slam_nodes.io.evaluation import evaluate
+from pf_slam_nodes.graph import run
+from pf_slam_nodes.io.convert import convert_carmen
 from . import stage_table
 
 CARMEN_YAML = Path(__file__).resolve().parents[2] / "config" / "carmen_indoor.yaml"

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..io.evaluation import evaluate
+from pf_slam_nodes.io.evaluation import evaluate
 from . import STAGE_COLUMNS, stage_cells
 from .carmen import CARMEN_YAML, DATASETS, carmen_bag
 
