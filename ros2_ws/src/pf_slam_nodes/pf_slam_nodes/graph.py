@@ -238,4 +238,9 @@ def _cli_overrides(args: Any) -> dict[str, dict[str, Any]]:
         o["filter.num_particles"] = args.particles
     if getattr(args, "seed", None) is not None:
         o["filter.seed"] = args.seed
-    return {"/**": o} if o else {}
+    out: dict[str, dict[str, Any]] = {"/**": o} if o else {}
+    if getattr(args, "delay", None):
+        if not args.delay >= 0:
+            raise RunError(f"--delay must be a number of seconds >= 0, got {args.delay}")
+        out["bag_replay"] = {"start_delay_s": float(args.delay)}
+    return out
