@@ -35,7 +35,7 @@
 
 The world frame is the robot's true starting pose (as in ``sim.indoor``): the odometry starts at
 the identity there, so |odometry - ground truth| is the dead-reckoning drift. Times are UNIX
-seconds from ``EPOCH_S``. The output is identical for a given seed and options.
+seconds from ``EPOCH_S``. A seed and options give the same data (the .mat headers carry the write time).
 """
 
 from __future__ import annotations
