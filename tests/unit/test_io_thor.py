@@ -280,12 +280,13 @@ def test_convert_hand_made_files(tmp_path):
     assert stamps == sorted(stamps)
     assert msgs[0][0] == '/tf_static'
     by = {}
-    for t, s, m in msgs:
+    for t, _, m in msgs:
         by.setdefault(t, []).append(m)
     scan = by['/scan'][2]
     assert scan.header.frame_id == 'lidar' and len(scan.ranges) == 1081
     assert scan.angle_min == pytest.approx(-2.35619449) and scan.angle_increment == pytest.approx(0.00436332313)
-    assert scan.angle_max == pytest.approx(2.35619449) and (scan.range_min, scan.range_max) == pytest.approx((0.1, 30.0))
+    assert scan.angle_max == pytest.approx(2.35619449)
+    assert (scan.range_min, scan.range_max) == pytest.approx((0.1, 30.0))
     assert stamp_ns_of(scan) == round((T0 + 0.05) * 1e6) * 1000
     np.testing.assert_allclose(scan.ranges, _scan(2)[0])
     od = by['/odom'][3]

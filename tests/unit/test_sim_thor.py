@@ -6,7 +6,6 @@ colour)."""
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import cv2
 import numpy as np

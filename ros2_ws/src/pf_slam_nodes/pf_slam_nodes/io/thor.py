@@ -29,15 +29,14 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..core.geometry import matrix_to_quat, rpy_to_quat
-from .bag import TYPESTORE, BagWriter, camera_info, image, laser_scan, make_header, odometry
-from .bag import open_writer, tf_static
+from .bag import TYPESTORE, BagWriter, camera_info, image, laser_scan, make_header, odometry, open_writer, tf_static
 from .convert import TOPIC_ODOM, TOPIC_SCAN, TOPIC_TF_STATIC, ConvertReport
 
 __all__ = [

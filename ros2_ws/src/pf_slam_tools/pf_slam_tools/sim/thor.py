@@ -50,11 +50,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .indoor import IndoorWorld, rasterise_world, ray_cast
-
 from pf_slam_nodes.io import thor as th
 from pf_slam_nodes.io.mapfile import write_map
 from pf_slam_nodes.io.trajectory import write_tum
+
+from .indoor import IndoorWorld, rasterise_world, ray_cast
 
 __all__ = ['EPOCH_S', 'OfficeLayout', 'ThorSimResult', 'office_layout', 'plan_walk', 'simulate_thor',
            'lidar_ranges', 'render_kinect', 'head_angles_at']
