@@ -1,0 +1,143 @@
+"""Localization on a saved map, through the whole graph (`pf-slam run BAG --localize MAP.yaml`).
+
+The sample bag is mapped first (`pf-slam run`); a second pass of the same office -- the
+simulator's seed 1 (other corners, speed, odometry drift), from 20 s on, so it starts away from
+where the map began -- is then localized on that map from a wrong initial guess (1 m, 30 deg)
+and from no guess (global initialisation). Errors are against the second pass's ground truth,
+taken into the map's frame by the mapping run's own alignment to its ground truth (one fixed
+transform: the localization is not aligned again).
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+pytest.importorskip("pf_slam_tools")
+
+from pf_slam_nodes.core import metrics  # noqa: E402
+from pf_slam_nodes.core.geometry import wrap_angle  # noqa: E402
+from pf_slam_nodes.graph import _localize_overrides, run  # noqa: E402
+from pf_slam_nodes.io.bag import bag_info, open_writer, read_bag  # noqa: E402
+from pf_slam_nodes.io.mapfile import read_map  # noqa: E402
+from pf_slam_nodes.io.trajectory import read_trajectory  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
+SAMPLE = ROOT / "bags" / "sample_indoor"
+SEGMENT_START_S = 20.0  # the second pass starts here (seed 1's drive, 20 s in)
+CONVERGED_M, CONVERGED_DEG = 0.10, 2.0  # "converged": every later scan's pose within these
+MAX_SCANS_TO_CONVERGE = 20  # 2 s of the 10 Hz laser
+
+
+def _crop(src: Path, dst: Path, start_ns: int) -> None:
+    """The bag from `start_ns` on (its /tf_static kept), with the same metadata."""
+    info = bag_info(str(src))
+    with open_writer(dst) as w:
+        for key, value in info.get("custom_data", {}).items():
+            w.set_custom_data(key, value)
+        for topic, msgtype, stamp, raw in read_bag(src):
+            if topic not in w.counts:
+                w.add_connection(topic, msgtype)
+            if stamp >= start_ns or topic == "/tf_static":
+                w.write_raw(topic, stamp, raw)
+
+
+@pytest.fixture(scope="module")
+def mapped(tmp_path_factory, module_ros_domain):
+    """The sample bag mapped; (map.yaml, the map frame -> ground truth frame transform)."""
+    out = tmp_path_factory.mktemp("map")
+    run(str(SAMPLE), out, progress=False, domain_id=module_ros_domain, record=False)
+    t_est, p_est = read_trajectory(out / "trajectory.tum")
+    t_gt, p_gt = read_trajectory(SAMPLE.parent / "ground_truth.tum")
+    assert np.array_equal(np.rint(t_est * 1e9), np.rint(t_gt * 1e9))
+    return out / "map.yaml", metrics.align_se2(p_est[:, :2], p_gt[:, :2])
+
+
+@pytest.fixture(scope="module")
+def second_pass(tmp_path_factory):
+    """Seed 1 of the office simulator from 20 s on: (bag, ground-truth stamps, poses)."""
+    from pf_slam_tools.sim.indoor import simulate_indoor
+    sim = tmp_path_factory.mktemp("sim1")
+    simulate_indoor(sim, seed=1, duration_s=60.0)
+    t_gt, p_gt = read_trajectory(sim / "ground_truth.tum")
+    start_ns = int(round((t_gt[0] + SEGMENT_START_S) * 1e9))
+    _crop(sim / "sample_indoor", sim / "segment", start_ns)
+    keep = np.rint(t_gt * 1e9) >= start_ns
+    return sim / "segment", t_gt[keep], p_gt[keep]
+
+
+def _to_map(align, poses: np.ndarray) -> np.ndarray:
+    """Ground-truth poses into the map frame (the inverse of the mapping run's alignment)."""
+    theta, t = align
+    c, s = math.cos(-theta), math.sin(-theta)
+    xy = poses[:, :2] - t
+    out = poses.copy()
+    out[:, 0], out[:, 1] = c * xy[:, 0] - s * xy[:, 1], s * xy[:, 0] + c * xy[:, 1]
+    out[:, 2] = wrap_angle(poses[:, 2] - theta)
+    return out
+
+
+def _localize(out: Path, bag: Path, map_yaml: Path, domain: int, initial_pose: str | None = None):
+    overrides = _localize_overrides(str(map_yaml), initial_pose)
+    return run(str(bag), out, progress=False, domain_id=domain, overrides=overrides)
+
+
+def _errors(out: Path, align, t_gt: np.ndarray, p_gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per scan: position error (m) and heading error (deg) against the ground truth."""
+    t_est, p_est = read_trajectory(out / "trajectory.tum")
+    assert np.array_equal(np.rint(t_est * 1e9), np.rint(t_gt * 1e9))
+    truth = _to_map(align, p_gt)
+    return (np.hypot(*(p_est[:, :2] - truth[:, :2]).T),
+            np.degrees(np.abs(wrap_angle(p_est[:, 2] - truth[:, 2]))))
+
+
+def _convergence(err_m: np.ndarray, err_deg: np.ndarray) -> int:
+    """The first scan from which every pose is within CONVERGED_M / CONVERGED_DEG."""
+    bad = np.flatnonzero((err_m > CONVERGED_M) | (err_deg > CONVERGED_DEG))
+    return 0 if bad.size == 0 else int(bad[-1]) + 1
+
+
+def _check(out: Path, res, align, t_gt, p_gt, what: str) -> None:
+    s = res.summary
+    assert s["complete"] and s["scans_processed"] == len(t_gt) and s["scans_dropped"] == 0
+    err_m, err_deg = _errors(out, align, t_gt, p_gt)
+    k = _convergence(err_m, err_deg)
+    rmse = float(np.sqrt(np.mean(err_m[k:] ** 2)))
+    print(f"\n{what}: converged after {k} scans ({k / 10:.1f} s; first scan error {err_m[0]:.3f} m "
+          f"{err_deg[0]:.1f} deg), ATE after convergence rmse {rmse:.4f} m max {err_m[k:].max():.4f} m, "
+          f"heading rmse {np.sqrt(np.mean(err_deg[k:] ** 2)):.2f} deg, wall {s['wall_time_s']:.1f} s")
+    assert k <= MAX_SCANS_TO_CONVERGE, (k, err_m[:k + 5], err_deg[:k + 5])
+    assert rmse < 0.03 and err_m[k:].max() < CONVERGED_M
+
+
+def test_localize_from_a_wrong_initial_guess(mapped, second_pass, tmp_path, module_ros_domain):
+    map_yaml, align = mapped
+    bag, t_gt, p_gt = second_pass
+    truth = _to_map(align, p_gt[:1])[0]
+    guess = truth + np.array([0.8, -0.6, math.radians(30.0)])  # 1 m and 30 deg off
+    assert math.hypot(*(guess - truth)[:2]) == pytest.approx(1.0)
+    res = _localize(tmp_path, bag, map_yaml, module_ros_domain, ",".join(f"{v:.6f}" for v in guess))
+    _check(tmp_path, res, align, t_gt, p_gt, "initial guess 1 m / 30 deg off")
+
+
+def test_localize_without_a_guess_and_the_map_is_unchanged(mapped, second_pass, tmp_path, module_ros_domain):
+    map_yaml, align = mapped
+    bag, t_gt, p_gt = second_pass
+    res = _localize(tmp_path, bag, map_yaml, module_ros_domain)
+    _check(tmp_path, res, align, t_gt, p_gt, "global initialisation")
+    # the map a user gets back is the map given, byte for byte: map.pgm and every /map recorded
+    assert (tmp_path / "map.pgm").read_bytes() == map_yaml.with_name("map.pgm").read_bytes()
+    occ, res_m, origin = read_map(map_yaml)
+    maps = [raw for topic, _, _, raw in read_bag(tmp_path / "result.mcap", ["/map"])]
+    assert maps
+    from nav_msgs.msg import OccupancyGrid
+    from rclpy.serialization import deserialize_message
+    for raw in maps:
+        m = deserialize_message(raw, OccupancyGrid)
+        assert (m.info.width, m.info.height) == (occ.shape[1], occ.shape[0])
+        assert m.info.resolution == pytest.approx(res_m)
+        assert (m.info.origin.position.x, m.info.origin.position.y) == pytest.approx(tuple(origin[:2]))
+        assert np.frombuffer(bytes(m.data), np.int8).tobytes() == occ.tobytes()
