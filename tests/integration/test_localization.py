@@ -141,3 +141,73 @@ def test_localize_without_a_guess_and_the_map_is_unchanged(mapped, second_pass, 
         assert m.info.resolution == pytest.approx(res_m)
         assert (m.info.origin.position.x, m.info.origin.position.y) == pytest.approx(tuple(origin[:2]))
         assert np.frombuffer(bytes(m.data), np.int8).tobytes() == occ.tobytes()
+
+
+def test_initialpose_and_particlecloud_on_the_ground_truth_map(ros_domain):
+    """What rviz2 does: "2D Pose Estimate" on /initialpose (1 m, 30 deg off), then /particlecloud:
+    the first cloud is the initial set around that guess (a global one would cover the floor),
+    later clouds the converged filter.num_particles; /pose ends on the ground truth (the
+    simulator's map is in the ground truth's frame)."""
+    import rclpy
+    from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped
+    from rclpy.executors import SingleThreadedExecutor
+
+    from conftest import spin_until
+    from pf_slam_nodes.core.geometry import quat_to_yaw, yaw_to_quat
+    from pf_slam_nodes.graph import NODE_NAMES, _make_node, detect_inputs, load_params, node_params
+    from pf_slam_nodes.nodes.common import announce_when_matched
+    from pf_slam_nodes.ros import convert, qos
+
+    t_gt, p_gt = read_trajectory(SAMPLE.parent / "ground_truth.tum")
+    guess = p_gt[0] + np.array([-0.6, 0.8, math.radians(-30.0)])
+    layers = [detect_inputs(str(SAMPLE), bag_info(str(SAMPLE))),
+              load_params(ROOT / "ros2_ws/src/pf_slam_nodes/config/sim_indoor.yaml"),
+              _localize_overrides(str(SAMPLE.parent / "ground_truth_map.yaml"), None),
+              {"bag_replay": {"bag": str(SAMPLE), "wait_for": ["predictor", "correlator", "mapper", "observer"]},
+               # as pf-slam run: the replay's stall, not a count of waiting scans, says odometry will not come
+               "predictor": {"odom_wait_scans": 0, "stamp_offset_s": 0.0}}]
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=ros_domain)
+    try:
+        ex = SingleThreadedExecutor(context=ctx)
+        obs = rclpy.create_node("observer", context=ctx)
+        clouds: list[PoseArray] = []
+        poses: dict[int, PoseStamped] = {}
+        sub_cloud = obs.create_subscription(PoseArray, "particlecloud", clouds.append, qos.outputs(1000))
+        sub_pose = obs.create_subscription(PoseStamped, "pose", lambda m: poses.__setitem__(
+            convert.stamp_to_ns(m.header.stamp), m), qos.pipeline())
+        pub_init = obs.create_publisher(PoseWithCovarianceStamped, "initialpose", 5)  # as rviz2: reliable, volatile
+        ex.add_node(obs)
+        nodes = {n: _make_node(n, ctx, node_params(layers, n)) for n in NODE_NAMES}
+        for n in nodes.values():
+            ex.add_node(n)
+        corr = nodes["correlator"]
+        assert spin_until(ex, lambda: pub_init.get_subscription_count() >= 1, 30.0)
+        msg = PoseWithCovarianceStamped()
+        msg.header.frame_id = "map"
+        msg.pose.pose.position.x, msg.pose.pose.position.y = float(guess[0]), float(guess[1])
+        o = msg.pose.pose.orientation
+        o.x, o.y, o.z, o.w = yaw_to_quat(float(guess[2]))
+        cov = np.zeros((6, 6))
+        cov[0, 0] = cov[1, 1] = 0.25  # rviz2's defaults: 0.5 m, 15 deg
+        cov[5, 5] = 0.06853891945200942
+        msg.pose.covariance = cov.reshape(-1).tolist()
+        pub_init.publish(msg)
+        assert spin_until(ex, lambda: corr.stage.pending_init is not None and corr.stage.pending_init[0] is not None,
+                          10.0)
+        announce_when_matched(obs, [(sub_cloud, 1), (sub_pose, 1)])  # now the replay may start
+        mapper = nodes["mapper"]
+        assert spin_until(ex, lambda: mapper.last_index == 599 and mapper.total is None, 120.0)
+        spin_until(ex, lambda: len(poses) == 600 and len(clouds) == corr.corrections_sent, 10.0)
+    finally:
+        rclpy.shutdown(context=ctx)
+    assert len(poses) == 600 and len(clouds) == corr.corrections_sent > 100
+    assert corr.stage.localization_status(30)["last_init"] == "initial pose"  # not the global start
+    first = np.array([[p.position.x, p.position.y] for p in clouds[0].poses])
+    assert clouds[0].header.frame_id == "map" and len(first) in (30, 200)
+    assert np.hypot(*(first - guess[:2]).T).max() < 3.0  # around the guess, not over the floor (20 x 15 m)
+    assert {len(c.poses) for c in clouds[-100:]} == {30}  # converged: filter.num_particles
+    last = poses[max(poses)].pose
+    yaw = quat_to_yaw(last.orientation.x, last.orientation.y, last.orientation.z, last.orientation.w)
+    assert math.hypot(last.position.x - p_gt[-1, 0], last.position.y - p_gt[-1, 1]) < 0.05
+    assert abs(wrap_angle(yaw - p_gt[-1, 2])) < math.radians(1.0)

@@ -156,6 +156,7 @@ class CorrectionStage:
         self.initialisations = 0
         self.converged_at: Optional[int] = None  # correction at which the set was last reduced
         self.init_seconds = 0.0  # wall time of the last initialising correction (candidates + matching)
+        self.last_init: Optional[str] = None  # "global" or "initial pose"
         self.filter_cfg = filter_cfg
         self.laser_cfg = laser_cfg or LaserConfig()
         self.grid_cfg = grid_cfg
@@ -188,7 +189,8 @@ class CorrectionStage:
 
     def localization_status(self, particles: int) -> dict:
         """What a run reports of the localization (summary.json ``localization``)."""
-        return {"initialisations": self.initialisations, "converged_at_correction": self.converged_at,
+        return {"initialisations": self.initialisations, "last_init": self.last_init,
+                "converged_at_correction": self.converged_at,
                 "init_seconds": round(self.init_seconds, 3), "particles": particles,
                 "free_area_m2": round(self.localizer.free_area_m2, 1) if self.localizer else None}
 
@@ -260,6 +262,7 @@ class CorrectionStage:
         if initialising:
             particles = self.localizer.initial_set(pts, self.init_rng, *self.pending_init)
             log_w = np.full(particles.shape[0], -math.log(particles.shape[0]))
+            self.last_init = "global" if self.pending_init[0] is None else "initial pose"
             self.pending_init = None
             self.initialisations += 1
             self.converged_at = None
