@@ -100,15 +100,18 @@ def _convergence(err_m: np.ndarray, err_deg: np.ndarray) -> int:
     return 0 if bad.size == 0 else int(bad[-1]) + 1
 
 
-def _check(out: Path, res, align, t_gt, p_gt, what: str) -> None:
+def _check(out: Path, res, align, t_gt, p_gt, what: str, init: str) -> None:
     s = res.summary
     assert s["complete"] and s["scans_processed"] == len(t_gt) and s["scans_dropped"] == 0
+    loc = s["localization"]
+    assert loc["last_init"] == init and loc["initialisations"] == 1 and loc["particles"] == s["particles"]
     err_m, err_deg = _errors(out, align, t_gt, p_gt)
     k = _convergence(err_m, err_deg)
     rmse = float(np.sqrt(np.mean(err_m[k:] ** 2)))
     print(f"\n{what}: converged after {k} scans ({k / 10:.1f} s; first scan error {err_m[0]:.3f} m "
           f"{err_deg[0]:.1f} deg), ATE after convergence rmse {rmse:.4f} m max {err_m[k:].max():.4f} m, "
-          f"heading rmse {np.sqrt(np.mean(err_deg[k:] ** 2)):.2f} deg, wall {s['wall_time_s']:.1f} s")
+          f"heading rmse {np.sqrt(np.mean(err_deg[k:] ** 2)):.2f} deg, first correction {loc['init_seconds']:.2f} s, "
+          f"wall {s['wall_time_s']:.1f} s")
     assert k <= MAX_SCANS_TO_CONVERGE, (k, err_m[:k + 5], err_deg[:k + 5])
     assert rmse < 0.03 and err_m[k:].max() < CONVERGED_M
 
@@ -120,14 +123,14 @@ def test_localize_from_a_wrong_initial_guess(mapped, second_pass, tmp_path, modu
     guess = truth + np.array([0.8, -0.6, math.radians(30.0)])  # 1 m and 30 deg off
     assert math.hypot(*(guess - truth)[:2]) == pytest.approx(1.0)
     res = _localize(tmp_path, bag, map_yaml, module_ros_domain, ",".join(f"{v:.6f}" for v in guess))
-    _check(tmp_path, res, align, t_gt, p_gt, "initial guess 1 m / 30 deg off")
+    _check(tmp_path, res, align, t_gt, p_gt, "initial guess 1 m / 30 deg off", "initial pose")
 
 
 def test_localize_without_a_guess_and_the_map_is_unchanged(mapped, second_pass, tmp_path, module_ros_domain):
     map_yaml, align = mapped
     bag, t_gt, p_gt = second_pass
     res = _localize(tmp_path, bag, map_yaml, module_ros_domain)
-    _check(tmp_path, res, align, t_gt, p_gt, "global initialisation")
+    _check(tmp_path, res, align, t_gt, p_gt, "global initialisation", "global")
     # the map a user gets back is the map given, byte for byte: map.pgm and every /map recorded
     assert (tmp_path / "map.pgm").read_bytes() == map_yaml.with_name("map.pgm").read_bytes()
     occ, res_m, origin = read_map(map_yaml)
@@ -144,12 +147,14 @@ def test_localize_without_a_guess_and_the_map_is_unchanged(mapped, second_pass, 
 
 
 def test_initialpose_and_particlecloud_on_the_ground_truth_map(ros_domain):
-    """What rviz2 does: "2D Pose Estimate" on /initialpose (1 m, 30 deg off), then /particlecloud:
+    """What rviz2 and nav2's map_server do: a latched /map from another node (the mapper has no
+    map_file), "2D Pose Estimate" on /initialpose (1 m, 30 deg off), then /particlecloud:
     the first cloud is the initial set around that guess (a global one would cover the floor),
     later clouds the converged filter.num_particles; /pose ends on the ground truth (the
     simulator's map is in the ground truth's frame)."""
     import rclpy
     from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped
+    from nav_msgs.msg import OccupancyGrid
     from rclpy.executors import SingleThreadedExecutor
 
     from conftest import spin_until
@@ -162,7 +167,8 @@ def test_initialpose_and_particlecloud_on_the_ground_truth_map(ros_domain):
     guess = p_gt[0] + np.array([-0.6, 0.8, math.radians(-30.0)])
     layers = [detect_inputs(str(SAMPLE), bag_info(str(SAMPLE))),
               load_params(ROOT / "ros2_ws/src/pf_slam_nodes/config/sim_indoor.yaml"),
-              _localize_overrides(str(SAMPLE.parent / "ground_truth_map.yaml"), None),
+              # no map_file: the map comes from another node's /map, as from nav2's map_server (here: the observer)
+              {"correlator": {"mode": "localization"}, "mapper": {"mode": "localization"}},
               {"bag_replay": {"bag": str(SAMPLE), "wait_for": ["predictor", "correlator", "mapper", "observer"]},
                # as pf-slam run: the replay's stall, not a count of waiting scans, says odometry will not come
                "predictor": {"odom_wait_scans": 0, "stamp_offset_s": 0.0}}]
@@ -177,6 +183,9 @@ def test_initialpose_and_particlecloud_on_the_ground_truth_map(ros_domain):
         sub_pose = obs.create_subscription(PoseStamped, "pose", lambda m: poses.__setitem__(
             convert.stamp_to_ns(m.header.stamp), m), qos.pipeline())
         pub_init = obs.create_publisher(PoseWithCovarianceStamped, "initialpose", 5)  # as rviz2: reliable, volatile
+        occ, res, origin = read_map(SAMPLE.parent / "ground_truth_map.yaml")
+        pub_map = obs.create_publisher(OccupancyGrid, "map", qos.latched())
+        pub_map.publish(convert.grid_to_msg(occ, res, origin[:2], 0, "map"))
         ex.add_node(obs)
         nodes = {n: _make_node(n, ctx, node_params(layers, n)) for n in NODE_NAMES}
         for n in nodes.values():
@@ -202,6 +211,7 @@ def test_initialpose_and_particlecloud_on_the_ground_truth_map(ros_domain):
     finally:
         rclpy.shutdown(context=ctx)
     assert len(poses) == 600 and len(clouds) == corr.corrections_sent > 100
+    assert nodes["mapper"].stage.grid is None  # nothing integrated
     assert corr.stage.localization_status(30)["last_init"] == "initial pose"  # not the global start
     first = np.array([[p.position.x, p.position.y] for p in clouds[0].poses])
     assert clouds[0].header.frame_id == "map" and len(first) in (30, 200)

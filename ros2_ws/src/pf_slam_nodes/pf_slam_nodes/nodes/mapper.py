@@ -13,7 +13,8 @@ the scan's frame from filter.sensor_offset_* / laser.extrinsic, once, if publish
 /map holds map_server trinary values: 100 / 0 / -1 by occupied_thresh / free_thresh.
 
 mode: localization -- the map is map_file (a map_server .yaml), loaded at start-up and published
-latched on /map as loaded (at once, for the correlator, then like a built map); no scan is
+latched on /map as loaded (at once, for the correlator, then like a built map); without map_file
+another node (nav2's map_server) publishes /map and this node publishes none. No scan is
 integrated and no grid patch is sent. map -> odom, /path and /tf_static as in SLAM.
 """
 from __future__ import annotations
@@ -52,9 +53,8 @@ class Mapper(Node):
         self.fixed_map: OccupancyGrid | None = None
         if self.mode not in ("slam", "localization"):
             raise ValueError(f"node mapper: parameter 'mode' must be 'slam' or 'localization', got {self.mode!r}")
-        if self.mode == "localization":
-            if not map_file:
-                raise ValueError("node mapper: mode 'localization' needs parameter 'map_file' (a map_server .yaml)")
+        self.localize = self.mode == "localization"
+        if self.localize and map_file:
             occ, res, origin = read_map(map_file)
             if abs(origin[2]) > 1e-9:
                 raise ValueError(f"{map_file}: origin yaw {origin[2]!r}: a rotated map is not supported")
@@ -117,7 +117,7 @@ class Mapper(Node):
                                            "than the graph): not mapped", throttle_duration_sec=5.0)
                 elif self.pub_tf_static is not None:
                     self._publish_sensor_tf(scan.header.frame_id, stamp)
-                if self.fixed_map is None:
+                if not self.localize:
                     self._integrate(pa, pose, scan, stamp)
             map_to_odom = compose(pose, relative_pose(np.asarray(pa.odom_pose), np.zeros(3)))
             self.pub_tf.publish(TFMessage(transforms=[
@@ -160,7 +160,9 @@ class Mapper(Node):
             self.total = None  # publish the final map once
 
     def publish_map(self) -> None:
-        if self.fixed_map is not None:  # localization: the loaded map, unchanged
+        if self.localize:  # the loaded map, unchanged (without map_file: another node's /map)
+            if self.fixed_map is None:
+                return
             msg = self.fixed_map
             msg.header.stamp = msg.info.map_load_time = convert.ns_to_stamp(self.last_stamp)
         elif not self.stage.ready:
