@@ -63,7 +63,7 @@ def test_gaussian_poses_follow_the_covariance():
     assert np.allclose(flat[:, 1:], 0.0)  # a semi-definite covariance (rviz2 sends zeros) is fine
 
 
-def test_coarse_scores_are_sums_of_nearest_cell_lookups():
+def test_coarse_scores_are_sums_of_nearest_cell_lookups(monkeypatch):
     occ, res, origin = read_map(GT_MAP)
     field = build_likelihood_field(occ, res, 0.15, 65, origin[:2], 0.45)
     rng = np.random.default_rng(1)
@@ -77,6 +77,9 @@ def test_coarse_scores_are_sums_of_nearest_cell_lookups():
     close = np.isclose(got, ref, rtol=1e-5, atol=1e-3)
     assert close.mean() > 0.97  # the same cells but for float32 rounding at a cell's edge
     assert np.array_equal(coarse_scores(poses[:7], pts, field), got[:7])  # chunking does not matter
+    import pf_slam_nodes.core.localization as loc
+    monkeypatch.setattr(loc, "_use_remap", lambda *a: False)  # a map too large for remap: numpy lookups
+    assert np.array_equal(coarse_scores(poses, pts, field), ref)
 
 
 @pytest.mark.parametrize("truth", [(0.0, 0.0, 0.0), (5.7, -4.6, 2.2), (-1.2, 4.1, -1.0)])
@@ -170,3 +173,20 @@ def test_read_map_errors_name_the_file(tmp_path):
     y.write_text("image: gone.png\nresolution: 0.1\norigin: [0, 0, 0]\n")
     with pytest.raises(ValueError, match=r"gone\.png: missing or not an image"):
         read_map(y)
+
+
+def test_localize_flags_become_parameters_and_bad_ones_one_line_errors(tmp_path):
+    from pf_slam_nodes.graph import RunError, _localize_overrides
+    assert _localize_overrides(None, None) == {}
+    o = _localize_overrides(str(GT_MAP), "1,-2,0.5")
+    assert o["mapper"] == {"mode": "localization", "map_file": str(GT_MAP.resolve())}
+    assert o["correlator"] == {"mode": "localization", "localization.use_initial_pose": True,
+                               "localization.initial_pose_x_m": 1.0, "localization.initial_pose_y_m": -2.0,
+                               "localization.initial_pose_yaw_rad": 0.5}
+    assert "localization.use_initial_pose" not in _localize_overrides(str(GT_MAP), None)["correlator"]
+    for args, match in (((None, "1,2,3"), "--initial-pose needs --localize"),
+                        ((str(tmp_path / "no.yaml"), None), r"--localize: .*no\.yaml: cannot read"),
+                        ((str(GT_MAP), "1,2"), "expected X,Y,YAW")):
+        with pytest.raises(RunError, match=match) as e:
+            _localize_overrides(*args)
+        assert "\n" not in str(e.value)

@@ -89,14 +89,19 @@ def coarse_scores(poses: np.ndarray, points: np.ndarray, field: LikelihoodField)
     out = np.zeros(n)
     if m == 0:
         return out
-    if not _use_remap(field, m):
-        raise ValueError(f"map of {field.height} x {field.width} cells is too large for the coarse scoring "
-                         f"(< {_REMAP_MAX_CELLS} cells per side)")
+    remap = _use_remap(field, m)
     chunk = max(1, min(_REMAP_MAX_CELLS - 1, _CHUNK_ELEMENTS // m))
     clamp = float(field.min_log_likelihood)
     for i0 in range(0, n, chunk):
-        u, v, _, _ = _points_in_table(poses[i0:i0 + chunk], pts, field, np.float32)
-        vals = cv2.remap(field._loglik, u, v, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=clamp)
+        p = poses[i0:i0 + chunk]
+        if remap:
+            u, v, _, _ = _points_in_table(p, pts, field, np.float32)
+            vals = cv2.remap(field._loglik, u, v, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
+                             borderValue=clamp)
+        else:  # a table too large for remap (32,000 cells or more on a side): index arithmetic
+            c, s = np.cos(p[:, 2:3]), np.sin(p[:, 2:3])
+            vals = field.lookup(np.stack([p[:, 0:1] + c * pts[:, 0] - s * pts[:, 1],
+                                          p[:, 1:2] + s * pts[:, 0] + c * pts[:, 1]], axis=-1))
         out[i0:i0 + chunk] = vals.sum(axis=1, dtype=np.float64)
     return out
 
