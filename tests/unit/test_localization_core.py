@@ -190,3 +190,62 @@ def test_localize_flags_become_parameters_and_bad_ones_one_line_errors(tmp_path)
         with pytest.raises(RunError, match=match) as e:
             _localize_overrides(*args)
         assert "\n" not in str(e.value)
+
+
+def _room_with_pillar():
+    """A 10 m square room (symmetric under quarter turns) with one pillar near its north-west
+    corner: segments, and its map at 0.05 m (origin (-6, -6))."""
+    room = [(-5, -5, 5, -5), (5, -5, 5, 5), (5, 5, -5, 5), (-5, 5, -5, -5)]
+    cx, cy, h = -3.5, 3.5, 0.3
+    pillar = [(cx - h, cy - h, cx + h, cy - h), (cx + h, cy - h, cx + h, cy + h),
+              (cx + h, cy + h, cx - h, cy + h), (cx - h, cy + h, cx - h, cy - h)]
+    segs = np.array(room + pillar, dtype=np.float64)
+    res, origin = 0.05, np.array([-6.0, -6.0])
+    occ = np.full((240, 240), -1, np.int8)
+    occ[20:220, 20:220] = 0  # inside the room
+    occ[int((cy - h + 6) / res):int((cy + h + 6) / res), int((cx - h + 6) / res):int((cx + h + 6) / res)] = -1
+    img = np.zeros(occ.shape, np.uint8)
+    for x0, y0, x1, y1 in segs:
+        p0 = tuple(int(v) for v in np.floor((np.array([x0, y0]) - origin) / res))
+        p1 = tuple(int(v) for v in np.floor((np.array([x1, y1]) - origin) / res))
+        cv2.line(img, p0, p1, 255, 1)
+    occ[img > 0] = 100
+    return segs, occ, res, origin
+
+
+def test_ambiguous_start_keeps_its_hypotheses_until_a_scan_decides():
+    """From the room's centre, facing east, the pillar is behind the 180 deg laser: four headings
+    fit the first scan equally, so the set stays large (not converged). Turning round brings the
+    pillar into view: the next correction keeps only the true heading and cuts the set."""
+    indoor = pytest.importorskip("pf_slam_tools.sim.indoor")
+    segs, occ, res, origin = _room_with_pillar()
+    angles = indoor.beam_angles()
+    fc = cfg.FilterConfig(num_particles=30)
+    st = CorrectionStage(fc, cfg.GridConfig(), cfg.CorrelationConfig(), cfg.ResampleConfig(), None,
+                         cfg.LocalizationConfig())
+    st.set_map(occ, res, origin)
+    pred = PredictionStage(fc, cfg.OdometryMotionConfig())
+    headings = []
+    for yaw in (0.0, math.pi):
+        truth = np.array([0.2, -0.1, yaw])
+        pred.predict(np.array([0.0, 0.0, yaw]))  # odometry: a turn on the spot
+        r = indoor.ray_cast(truth[None], angles, segs, indoor.RANGE_MAX_M)[0]
+        c = st.correct(pred.particles, pred.log_weights, np.where(np.isfinite(r), r, np.inf), angles, 0.1, 20.0)
+        pred.set_corrected(c.particles, c.log_weights)
+        w = np.exp(c.log_weights)
+        # weight near each of the room's four symmetric images of the true pose (quarter turns about its centre)
+        weights = []
+        for q in range(4):
+            a = q * math.pi / 2
+            image = np.array([math.cos(a) * truth[0] - math.sin(a) * truth[1],
+                              math.sin(a) * truth[0] + math.cos(a) * truth[1], yaw + a])
+            near = ((np.hypot(*(c.particles[:, :2] - image[:2]).T) < 0.1)
+                    & (np.abs(wrap_angle(c.particles[:, 2] - image[2])) < 0.1))
+            weights.append(float(w[near].sum()))
+        headings.append(weights)
+        if yaw == 0.0:
+            assert c.particles.shape[0] == st.loc_cfg.init_particles and st.converged_at is None
+            assert sum(h > 0.1 for h in headings[0]) >= 3 and sum(headings[0]) > 0.9, headings  # kept
+    assert c.particles.shape[0] == 30 and st.converged_at == 1, headings
+    assert headings[1][0] > 0.99 and abs(wrap_angle(c.pose[2] - math.pi)) < 0.02
+    assert math.hypot(c.pose[0] - 0.2, c.pose[1] + 0.1) < 0.05

@@ -132,8 +132,10 @@ class Correlator(Node):
             stamp = convert.stamp_to_ns(pa.header.stamp)  # the scan's
             if pa.update:
                 if self.mode == "localization":
-                    if self.stage.localizer is None:
-                        return  # the fixed map is not here yet
+                    if self.stage.localizer is None:  # the fixed map is not here yet
+                        self.get_logger().warn("mode localization: no map on /map yet (mapper map_file, or a "
+                                               "map_server); corrections wait for it", throttle_duration_sec=10.0)
+                        return
                 elif self.grids_received < self.corrections_sent:
                     return  # the map of the previous correction is not here yet
                 if not self.scans.has(self.corrections_sent, stamp):
