@@ -527,7 +527,7 @@ class LocalizationConfig(_ConfigBase):
     ----------
     init_particles : int
         Particles after an initialisation (global, or around an initial pose); the set is
-        resampled down to filter.num_particles once it has converged.
+        resampled to filter.num_particles once it has converged.
     global_candidates_per_m2 : float
         Global initialisation: candidate poses drawn per m^2 of the map's free space (uniform
         position and heading), scored against the coarse field; the init_particles best are kept.

@@ -13,9 +13,9 @@ with ``coarse_beams`` of the scan's points. The ``init_particles`` best become t
 (uniform weights); the correlation stage then matches each of them in its window and weighs them
 as usual, and the following corrections (with resampling) decide between the hypotheses left.
 
-**Convergence.** While the set is larger than ``filter.num_particles``, every correction checks
+**Convergence.** While the set's size is not ``filter.num_particles``, every correction checks
 the weighted spread (position std and circular heading std); once both are below
-``converged_xy_m`` / ``converged_yaw_rad`` the set is resampled down to ``filter.num_particles``.
+``converged_xy_m`` / ``converged_yaw_rad`` the set is resampled to ``filter.num_particles``.
 """
 from __future__ import annotations
 
@@ -193,7 +193,7 @@ class Localizer:
     @staticmethod
     def reduce(particles: np.ndarray, log_weights: np.ndarray, n: int,
                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """Resample a set down to ``n`` particles (stratified, by weight; uniform weights)."""
+        """Resample a set to ``n`` particles (stratified, by weight; uniform weights)."""
         idx = _resample_from_u(log_weights, (np.arange(n) + rng.random(n)) / n)
         return np.asarray(particles)[idx].copy(), np.full(n, -math.log(n))
 

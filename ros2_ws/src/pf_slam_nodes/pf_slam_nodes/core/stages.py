@@ -143,7 +143,7 @@ class CorrectionStage:
     SLAM: the likelihood field follows the mapping stage's patches (:meth:`apply_patch`).
     Localization: :meth:`set_map` fixes the map once; the next correction replaces the predicted
     set with an initial one (global, or around an initial pose: :meth:`request_init`), and a set
-    larger than ``filter.num_particles`` is resampled down to it once it has converged
+    of another size than ``filter.num_particles`` is resampled to it once it has converged
     (core/localization.py)."""
 
     def __init__(self, filter_cfg: FilterConfig, grid_cfg: GridConfig, corr_cfg: CorrelationConfig,
@@ -283,7 +283,7 @@ class CorrectionStage:
             log_w = np.full(n, -math.log(n))
             self.num_resamples += 1
         target = self.filter_cfg.num_particles
-        if self.localizer is not None and n > target and self.localizer.converged(particles, log_w):
+        if self.localizer is not None and n != target and self.localizer.converged(particles, log_w):
             particles, log_w = self.localizer.reduce(particles, log_w, target, self.rng)
             self.converged_at = self.num_corrections
         if initialising:
