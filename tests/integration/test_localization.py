@@ -146,29 +146,41 @@ def test_localize_without_a_guess_and_the_map_is_unchanged(mapped, second_pass, 
         assert np.frombuffer(bytes(m.data), np.int8).tobytes() == occ.tobytes()
 
 
-def test_initialpose_and_particlecloud_on_the_ground_truth_map(ros_domain):
-    """What rviz2 and nav2's map_server do: a latched /map from another node (the mapper has no
-    map_file), "2D Pose Estimate" on /initialpose (1 m, 30 deg off), then /particlecloud:
-    the first cloud is the initial set around that guess (a global one would cover the floor),
-    later clouds the converged filter.num_particles; /pose ends on the ground truth (the
-    simulator's map is in the ground truth's frame)."""
+def _initialpose(pose: np.ndarray):
+    """What rviz2's "2D Pose Estimate" sends: map frame, its default spread (0.5 m, 15 deg)."""
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+
+    from pf_slam_nodes.core.geometry import yaw_to_quat
+    msg = PoseWithCovarianceStamped()
+    msg.header.frame_id = "map"
+    msg.pose.pose.position.x, msg.pose.pose.position.y = float(pose[0]), float(pose[1])
+    o = msg.pose.pose.orientation
+    o.x, o.y, o.z, o.w = yaw_to_quat(float(pose[2]))
+    cov = np.zeros((6, 6))
+    cov[0, 0] = cov[1, 1] = 0.25
+    cov[5, 5] = 0.06853891945200942
+    msg.pose.covariance = cov.reshape(-1).tolist()
+    return msg
+
+
+def _graph_on_served_map(ros_domain: int, correlator: dict, first_guess=None, later: tuple | None = None):
+    """The sample bag through the in-process graph in mode localization, the ground-truth map
+    served on a latched /map by an observer (as nav2's map_server; the mapper has no map_file),
+    /initialpose sent before the replay starts (`first_guess`) and/or, `later` = (k, pose), once
+    k scans are posed. Returns (poses by stamp, particle clouds, correlator node, mapper node)."""
     import rclpy
     from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped
     from nav_msgs.msg import OccupancyGrid
     from rclpy.executors import SingleThreadedExecutor
 
     from conftest import spin_until
-    from pf_slam_nodes.core.geometry import quat_to_yaw, yaw_to_quat
     from pf_slam_nodes.graph import NODE_NAMES, _make_node, detect_inputs, load_params, node_params
     from pf_slam_nodes.nodes.common import announce_when_matched
     from pf_slam_nodes.ros import convert, qos
 
-    t_gt, p_gt = read_trajectory(SAMPLE.parent / "ground_truth.tum")
-    guess = p_gt[0] + np.array([-0.6, 0.8, math.radians(-30.0)])
     layers = [detect_inputs(str(SAMPLE), bag_info(str(SAMPLE))),
               load_params(ROOT / "ros2_ws/src/pf_slam_nodes/config/sim_indoor.yaml"),
-              # no map_file: the map comes from another node's /map, as from nav2's map_server (here: the observer)
-              {"correlator": {"mode": "localization"}, "mapper": {"mode": "localization"}},
+              {"correlator": {"mode": "localization", **correlator}, "mapper": {"mode": "localization"}},
               {"bag_replay": {"bag": str(SAMPLE), "wait_for": ["predictor", "correlator", "mapper", "observer"]},
                # as pf-slam run: the replay's stall, not a count of waiting scans, says odometry will not come
                "predictor": {"odom_wait_scans": 0, "stamp_offset_s": 0.0}}]
@@ -179,10 +191,14 @@ def test_initialpose_and_particlecloud_on_the_ground_truth_map(ros_domain):
         obs = rclpy.create_node("observer", context=ctx)
         clouds: list[PoseArray] = []
         poses: dict[int, PoseStamped] = {}
-        sub_cloud = obs.create_subscription(PoseArray, "particlecloud", clouds.append, qos.outputs(1000))
-        sub_pose = obs.create_subscription(PoseStamped, "pose", lambda m: poses.__setitem__(
-            convert.stamp_to_ns(m.header.stamp), m), qos.pipeline())
         pub_init = obs.create_publisher(PoseWithCovarianceStamped, "initialpose", 5)  # as rviz2: reliable, volatile
+
+        def on_pose(m: PoseStamped) -> None:
+            poses[convert.stamp_to_ns(m.header.stamp)] = m
+            if later is not None and len(poses) == later[0]:
+                pub_init.publish(_initialpose(later[1]))
+        sub_cloud = obs.create_subscription(PoseArray, "particlecloud", clouds.append, qos.outputs(1000))
+        sub_pose = obs.create_subscription(PoseStamped, "pose", on_pose, qos.pipeline())
         occ, res, origin = read_map(SAMPLE.parent / "ground_truth_map.yaml")
         pub_map = obs.create_publisher(OccupancyGrid, "map", qos.latched())
         pub_map.publish(convert.grid_to_msg(occ, res, origin[:2], 0, "map"))
@@ -190,34 +206,64 @@ def test_initialpose_and_particlecloud_on_the_ground_truth_map(ros_domain):
         nodes = {n: _make_node(n, ctx, node_params(layers, n)) for n in NODE_NAMES}
         for n in nodes.values():
             ex.add_node(n)
-        corr = nodes["correlator"]
+        corr, mapper = nodes["correlator"], nodes["mapper"]
         assert spin_until(ex, lambda: pub_init.get_subscription_count() >= 1, 30.0)
-        msg = PoseWithCovarianceStamped()
-        msg.header.frame_id = "map"
-        msg.pose.pose.position.x, msg.pose.pose.position.y = float(guess[0]), float(guess[1])
-        o = msg.pose.pose.orientation
-        o.x, o.y, o.z, o.w = yaw_to_quat(float(guess[2]))
-        cov = np.zeros((6, 6))
-        cov[0, 0] = cov[1, 1] = 0.25  # rviz2's defaults: 0.5 m, 15 deg
-        cov[5, 5] = 0.06853891945200942
-        msg.pose.covariance = cov.reshape(-1).tolist()
-        pub_init.publish(msg)
-        assert spin_until(ex, lambda: corr.stage.pending_init is not None and corr.stage.pending_init[0] is not None,
-                          10.0)
+        if first_guess is not None:
+            pub_init.publish(_initialpose(first_guess))
+            assert spin_until(ex, lambda: corr.stage.pending_init is not None
+                              and corr.stage.pending_init[0] is not None, 10.0)
         announce_when_matched(obs, [(sub_cloud, 1), (sub_pose, 1)])  # now the replay may start
-        mapper = nodes["mapper"]
         assert spin_until(ex, lambda: mapper.last_index == 599 and mapper.total is None, 120.0)
         spin_until(ex, lambda: len(poses) == 600 and len(clouds) == corr.corrections_sent, 10.0)
     finally:
         rclpy.shutdown(context=ctx)
     assert len(poses) == 600 and len(clouds) == corr.corrections_sent > 100
-    assert nodes["mapper"].stage.grid is None  # nothing integrated
+    assert mapper.stage.grid is None  # nothing integrated
+    return poses, clouds, corr, mapper
+
+
+def _pose_errors(poses: dict) -> np.ndarray:
+    """(600, 2): position (m) and heading (rad) error of every /pose against the ground truth
+    (the simulator's map is in the ground truth's frame)."""
+    from pf_slam_nodes.core.geometry import quat_to_yaw
+    t_gt, p_gt = read_trajectory(SAMPLE.parent / "ground_truth.tum")
+    out = []
+    for k, stamp in enumerate(sorted(poses)):
+        p = poses[stamp].pose
+        yaw = quat_to_yaw(p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w)
+        out.append((math.hypot(p.position.x - p_gt[k, 0], p.position.y - p_gt[k, 1]), abs(wrap_angle(yaw - p_gt[k, 2]))))
+    return np.array(out)
+
+
+def test_initialpose_and_particlecloud_on_a_served_map(ros_domain):
+    """rviz2's "2D Pose Estimate" (1 m, 30 deg off) before the drive, the map from another
+    node's /map: the first /particlecloud lies around that guess (a global start could be anywhere
+    on the floor), later ones hold the converged filter.num_particles, /pose ends on the truth."""
+    t_gt, p_gt = read_trajectory(SAMPLE.parent / "ground_truth.tum")
+    guess = p_gt[0] + np.array([-0.6, 0.8, math.radians(-30.0)])
+    poses, clouds, corr, _ = _graph_on_served_map(ros_domain, {}, first_guess=guess)
     assert corr.stage.localization_status(30)["last_init"] == "initial pose"  # not the global start
     first = np.array([[p.position.x, p.position.y] for p in clouds[0].poses])
-    assert clouds[0].header.frame_id == "map" and len(first) in (30, 200)
+    assert clouds[0].header.frame_id == "map" and len(first) in (30, 2000)
     assert np.hypot(*(first - guess[:2]).T).max() < 3.0  # around the guess, not over the floor (20 x 15 m)
     assert {len(c.poses) for c in clouds[-100:]} == {30}  # converged: filter.num_particles
-    last = poses[max(poses)].pose
-    yaw = quat_to_yaw(last.orientation.x, last.orientation.y, last.orientation.z, last.orientation.w)
-    assert math.hypot(last.position.x - p_gt[-1, 0], last.position.y - p_gt[-1, 1]) < 0.05
-    assert abs(wrap_angle(yaw - p_gt[-1, 2])) < math.radians(1.0)
+    err = _pose_errors(poses)
+    assert err[-1, 0] < 0.05 and err[-1, 1] < math.radians(1.0)
+
+
+def test_initialpose_during_the_run_relocalizes(ros_domain):
+    """A confident wrong start (where the robot is 15 s later, in another room; 0.1 m spread)
+    tracks the wrong place; an /initialpose at the true pose, sent once 300 scans are posed, puts
+    the filter back on the truth."""
+    t_gt, p_gt = read_trajectory(SAMPLE.parent / "ground_truth.tum")
+    wrong = {"localization.use_initial_pose": True, "localization.initial_pose_x_m": float(p_gt[150, 0]),
+             "localization.initial_pose_y_m": float(p_gt[150, 1]), "localization.initial_pose_yaw_rad": float(p_gt[150, 2]),
+             "localization.initial_sigma_xy_m": 0.1, "localization.initial_sigma_yaw_rad": 0.05}
+    poses, _, corr, _ = _graph_on_served_map(ros_domain, wrong, later=(300, p_gt[299]))
+    err = _pose_errors(poses)
+    print(f"\nbefore the /initialpose: median error {np.median(err[:300, 0]):.2f} m; "
+          f"from 20 scans after it: max {err[320:, 0].max():.3f} m")
+    assert np.median(err[:300, 0]) > 1.0  # lost
+    assert err[320:, 0].max() < 0.05 and err[320:, 1].max() < math.radians(1.0)
+    st = corr.stage.localization_status(30)
+    assert st["initialisations"] == 2 and st["last_init"] == "initial pose"
