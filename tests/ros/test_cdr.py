@@ -98,6 +98,22 @@ def test_pose_stamped_writer_round_trips_through_rclpy(frame):
     assert s == stamp and np.allclose(p, pose, atol=1e-12)
 
 
+@pytest.mark.parametrize("frame", ["m", "map", "mapx", "a_longer_frame"])
+@pytest.mark.parametrize("n", [0, 1, 3])
+def test_pose_array_writer_round_trips_through_rclpy(frame, n):
+    from geometry_msgs.msg import PoseArray
+    poses, stamp = np.random.default_rng(n).normal(size=(n, 3)) * [5.0, 5.0, 3.0], 1_700_000_000_123_456_789
+    msg = deserialize_message(cdr.PoseArrayWriter(frame).pack(poses, stamp), PoseArray)
+    ref = PoseArray(header=convert.pose_stamped(np.zeros(3), stamp, frame).header,
+                    poses=[convert.pose_stamped(p, stamp, frame).pose for p in poses])
+    assert msg.header == ref.header and len(msg.poses) == n
+    for a, b in zip(msg.poses, ref.poses):
+        assert np.allclose([a.position.x, a.position.y, a.position.z, a.orientation.x, a.orientation.y,
+                            a.orientation.z, a.orientation.w],
+                           [b.position.x, b.position.y, b.position.z, b.orientation.x, b.orientation.y,
+                            b.orientation.z, b.orientation.w], atol=1e-12)
+
+
 def test_clock_bytes_are_a_clock_message():
     from rosgraph_msgs.msg import Clock
     stamp = 1_318_000_000_123_456_789

@@ -26,7 +26,7 @@ def test_launch_file_compiles_and_names_installed_executables():
         assert (PKG / "pf_slam_nodes" / "nodes" / f"{name}.py").is_file()
         assert "def main(" in (PKG / "pf_slam_nodes" / "nodes" / f"{name}.py").read_text()
     assert (PKG / "config" / _constant(LAUNCH, "DEFAULT_PARAMS")).is_file()
-    for arg in ("bag", "params_file", "use_sim_time"):
+    for arg in ("bag", "params_file", "use_sim_time", "map"):
         assert f'DeclareLaunchArgument("{arg}"' in source
 
 

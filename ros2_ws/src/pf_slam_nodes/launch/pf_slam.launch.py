@@ -11,6 +11,7 @@ profile under it; profile:=none uses the nodes' built-in defaults.
 
 Bring your own bag: scan_topic:=/front/scan odom_topic:=/wheel/odom (the nodes' relative topics are
 remapped; bag_replay publishes the bag's own names). texture:=true adds the stereo texture node.
+map:=/path/map.yaml localizes on that saved map instead of building one (mode localization).
 The pip-only install has no `launch` package; use `pf-slam run` there (same nodes, same files).
 """
 import os
@@ -56,6 +57,10 @@ def _nodes(context):
     remaps = [("scan", arg("scan_topic")), ("odom", arg("odom_topic")), ("encoders", arg("encoders_topic")),
               ("fog", arg("fog_topic")), ("imu", arg("imu_topic"))]
     extra = {"bag_replay": [{"bag": arg("bag"), "scan_topic": arg("scan_topic")}]}
+    saved_map = arg("map").perform(context)
+    if saved_map:  # localization only, as `pf-slam run --localize`
+        extra["correlator"] = [{"mode": "localization"}]
+        extra["mapper"] = [{"mode": "localization", "map_file": os.path.abspath(saved_map)}]
     return [LogInfo(msg=line)] + [
         Node(package="pf_slam_nodes", executable=name, name=name, output="screen",
              parameters=common + extra.get(name, []), remappings=remaps,
@@ -73,6 +78,8 @@ def generate_launch_description():
                               description="ROS 2 parameter YAML; the whole tuning unless profile:=NAME"),
         DeclareLaunchArgument("use_sim_time", default_value="true"),
         DeclareLaunchArgument("texture", default_value="false", description="run the stereo texture node"),
+        DeclareLaunchArgument("map", default_value="",
+                              description="localization only: track the pose on this saved map (map_server .yaml)"),
         DeclareLaunchArgument("scan_topic", default_value="/scan", description="sensor_msgs/LaserScan"),
         DeclareLaunchArgument("odom_topic", default_value="/odom", description="nav_msgs/Odometry"),
         DeclareLaunchArgument("encoders_topic", default_value="/encoders", description="sensor_msgs/JointState"),

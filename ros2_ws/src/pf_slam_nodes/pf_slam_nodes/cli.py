@@ -61,6 +61,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="one process with one executor, or one process per node over DDS")
     r.add_argument("--particles", type=int, help="number of particles (filter.num_particles)")
     r.add_argument("--seed", type=int, help="random seed (filter.seed)")
+    r.add_argument("--localize", metavar="MAP_YAML",
+                   help="localization only: track the pose on this saved map (map_server .yaml), never change it")
+    r.add_argument("--initial-pose", metavar="X,Y,YAW",
+                   help="with --localize: start around this pose (map frame; m, m, rad) instead of a global "
+                        "initialisation")
     r.add_argument("--executor", choices=["single", "events"], default="events",
                    help="executor of the single-process graph: SingleThreadedExecutor or rclpy's "
                         "experimental C++ EventsExecutor (same result)")

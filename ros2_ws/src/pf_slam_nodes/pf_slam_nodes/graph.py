@@ -245,4 +245,30 @@ def _cli_overrides(args: Any) -> dict[str, dict[str, Any]]:
         if not args.delay >= 0:
             raise RunError(f"--delay must be a number of seconds >= 0, got {args.delay}")
         out["bag_replay"] = {"start_delay_s": float(args.delay)}
+    out.update(_localize_overrides(getattr(args, "localize", None), getattr(args, "initial_pose", None)))
     return out
+
+
+def _localize_overrides(map_yaml: str | None, initial_pose: str | None) -> dict[str, dict[str, Any]]:
+    """--localize MAP_YAML [--initial-pose X,Y,YAW] -> the correlator's and the mapper's
+    parameters (mode localization, map_file, localization.initial_pose_*); the map is read here
+    first, so a bad one stops the run before anything starts."""
+    if map_yaml is None:
+        if initial_pose is not None:
+            raise RunError("--initial-pose needs --localize MAP_YAML")
+        return {}
+    from .io.mapfile import read_map
+    path = str(Path(map_yaml).resolve())
+    try:
+        read_map(path)
+    except (OSError, ValueError) as e:
+        raise RunError(f"--localize: {e}") from None
+    corr: dict[str, Any] = {"mode": "localization"}
+    if initial_pose is not None:
+        try:
+            x, y, yaw = (float(v) for v in initial_pose.split(","))
+        except ValueError:
+            raise RunError(f"--initial-pose: expected X,Y,YAW (m, m, rad), got {initial_pose!r}") from None
+        corr.update({"localization.use_initial_pose": True, "localization.initial_pose_x_m": x,
+                     "localization.initial_pose_y_m": y, "localization.initial_pose_yaw_rad": yaw})
+    return {"correlator": corr, "mapper": {"mode": "localization", "map_file": path}}

@@ -517,3 +517,70 @@ class LaserConfig(_ConfigBase):
     @property
     def is_3d(self) -> bool:
         return any(self.extrinsic)
+
+
+@dataclasses.dataclass(frozen=True)
+class LocalizationConfig(_ConfigBase):
+    """Localization on a fixed map (correlator, ``mode: localization``; see core/localization.py).
+
+    Attributes
+    ----------
+    init_particles : int
+        Particles after an initialisation (global, or around an initial pose); the set is
+        resampled to filter.num_particles once it has converged.
+    global_candidates_per_m2 : float
+        Global initialisation: candidate poses drawn per m^2 of the map's free space (uniform
+        position and heading), scored against the coarse field; the init_particles best are kept.
+    max_candidates : int
+        Upper bound on the candidates of a global initialisation.
+    pose_candidates : int
+        Candidates drawn from an initial pose's Gaussian (those on free cells are scored).
+    coarse_sigma_m : float
+        Std of the coarse likelihood field that ranks the candidates (m); clamped at 3 sigma.
+    coarse_beams : int
+        Scan points used to rank the candidates (evenly strided).
+    converged_xy_m : float
+        The set has converged when its weighted position std is at most this (m) ...
+    converged_yaw_rad : float
+        ... and its circular heading std at most this (rad).
+    use_initial_pose : bool
+        Start from initial_pose_* (a Gaussian with initial_sigma_*) instead of a global
+        initialisation; an /initialpose message replaces either at the next correction.
+    initial_pose_x_m, initial_pose_y_m, initial_pose_yaw_rad : float
+        Initial pose in the map frame (m, m, rad), with use_initial_pose.
+    initial_sigma_xy_m : float
+        Std of the initial pose's position (m), per axis (rviz2's default: 0.5).
+    initial_sigma_yaw_rad : float
+        Std of the initial pose's heading (rad) (rviz2's default: 0.2618, 15 deg).
+    """
+
+    init_particles: int = 2000
+    global_candidates_per_m2: float = 1000.0
+    max_candidates: int = 500_000
+    pose_candidates: int = 20_000
+    coarse_sigma_m: float = 0.15
+    coarse_beams: int = 60
+    converged_xy_m: float = 0.15
+    converged_yaw_rad: float = 0.05
+    use_initial_pose: bool = False
+    initial_pose_x_m: float = 0.0
+    initial_pose_y_m: float = 0.0
+    initial_pose_yaw_rad: float = 0.0
+    initial_sigma_xy_m: float = 0.5
+    initial_sigma_yaw_rad: float = 0.2618
+
+    def __post_init__(self) -> None:
+        _check_int("init_particles", self.init_particles, 1)
+        _check_pos("global_candidates_per_m2", self.global_candidates_per_m2)
+        _check_int("max_candidates", self.max_candidates, 1)
+        _check_int("pose_candidates", self.pose_candidates, 1)
+        _check_pos("coarse_sigma_m", self.coarse_sigma_m)
+        _check_int("coarse_beams", self.coarse_beams, 1)
+        _check_pos("converged_xy_m", self.converged_xy_m)
+        _check_pos("converged_yaw_rad", self.converged_yaw_rad)
+        if not isinstance(self.use_initial_pose, bool):
+            raise ValueError(f"use_initial_pose must be a bool, got {self.use_initial_pose!r}")
+        for name in ("initial_pose_x_m", "initial_pose_y_m", "initial_pose_yaw_rad"):
+            _check_finite(name, getattr(self, name))
+        _check_nonneg("initial_sigma_xy_m", self.initial_sigma_xy_m)
+        _check_nonneg("initial_sigma_yaw_rad", self.initial_sigma_yaw_rad)

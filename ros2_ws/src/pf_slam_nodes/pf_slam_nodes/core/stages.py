@@ -10,7 +10,8 @@ the reference loop compute the same trajectory bit for bit, and no full grid cro
 middleware per scan.
 
 Random streams: one ``np.random.Generator`` per stage, seeded ``[seed, k]`` (k = 1 motion,
-2 resampling), so a stage's draws do not depend on which process it runs in.
+2 resampling, 3 a localization's initial candidates), so a stage's draws do not depend on which
+process it runs in.
 """
 from __future__ import annotations
 
@@ -21,17 +22,19 @@ from typing import Optional
 
 import numpy as np
 
-from .config import (CorrelationConfig, FilterConfig, GridConfig, LaserConfig, OdometryMotionConfig,
-                     ResampleConfig)
+from .config import (CorrelationConfig, FilterConfig, GridConfig, LaserConfig, LocalizationConfig,
+                     OdometryMotionConfig, ResampleConfig)
 from .correlation import GridLikelihoodField, correlate
 from .filter import n_eff, resample, update_log_weights
 from .geometry import relative_pose
 from .grid import LogOddsGrid, grid_geometry, grow_array, growth_plan
+from .localization import Localizer, pending_from_config
 from .motion import sample_odometry_motion
 from .scan import planar_scan, scan_to_points, transform_points
 
 MOTION_STREAM = 1
 RESAMPLE_STREAM = 2
+INIT_STREAM = 3  # localization: the initialisation's candidates
 
 
 @dataclasses.dataclass
@@ -135,10 +138,25 @@ class Correction:
 
 
 class CorrectionStage:
-    """Scan-to-map correlation of every particle, weight update, resampling."""
+    """Scan-to-map correlation of every particle, weight update, resampling.
+
+    SLAM: the likelihood field follows the mapping stage's patches (:meth:`apply_patch`).
+    Localization: :meth:`set_map` fixes the map once; the next correction replaces the predicted
+    set with an initial one (global, or around an initial pose: :meth:`request_init`), and a set
+    of another size than ``filter.num_particles`` is resampled to it once it has converged
+    (core/localization.py)."""
 
     def __init__(self, filter_cfg: FilterConfig, grid_cfg: GridConfig, corr_cfg: CorrelationConfig,
-                 resample_cfg: ResampleConfig, laser_cfg: Optional[LaserConfig] = None) -> None:
+                 resample_cfg: ResampleConfig, laser_cfg: Optional[LaserConfig] = None,
+                 loc_cfg: Optional[LocalizationConfig] = None) -> None:
+        self.loc_cfg = loc_cfg or LocalizationConfig()
+        self.localizer: Optional[Localizer] = None  # set_map: localization on a fixed map
+        self.pending_init: Optional[tuple] = None  # (mean, cov): around a pose; (None, None): global
+        self.init_rng = np.random.default_rng([filter_cfg.seed, INIT_STREAM])
+        self.initialisations = 0
+        self.converged_at: Optional[int] = None  # correction at which the set was last reduced
+        self.init_seconds = 0.0  # wall time of the last initialising correction (candidates + matching)
+        self.last_init: Optional[str] = None  # "global" or "initial pose"
         self.filter_cfg = filter_cfg
         self.laser_cfg = laser_cfg or LaserConfig()
         self.grid_cfg = grid_cfg
@@ -151,6 +169,36 @@ class CorrectionStage:
         self.num_corrections = 0
         self.num_resamples = 0
         self.clock = StageClock()  # "correlate" (+ weights), "resample" (+ pose estimate), "field"
+
+    def set_map(self, occupancy: np.ndarray, resolution: float, origin) -> None:
+        """Localization: the fixed map (int8 ``(H, W)``, -1 / 0..100, row 0 = lowest y) becomes
+        the likelihood field, and the next correction initialises the set as the parameters say
+        (``localization.use_initial_pose``, else global)."""
+        t0 = time.perf_counter()
+        occ = np.asarray(occupancy)
+        if occ.ndim != 2 or occ.size == 0:
+            raise ValueError(f"the fixed map must be a non-empty (H, W) grid, got shape {occ.shape}")
+        h, w = occ.shape
+        self.field = GridLikelihoodField(h, w, float(resolution), np.asarray(origin, float)[:2], self.corr_cfg)
+        self.field.set_obstacle_block(0, 0, occ >= self.corr_cfg.occupied_threshold)
+        self.known = (occ >= 0) if self.corr_cfg.skip_unknown else None
+        self.localizer = Localizer(occ, resolution, origin, self.corr_cfg, self.loc_cfg)
+        if self.pending_init is None and self.initialisations == 0:
+            self.pending_init = pending_from_config(self.loc_cfg)
+        self.clock.add("field", t0)
+
+    def localization_status(self, particles: int) -> dict:
+        """What a run reports of the localization (summary.json ``localization``)."""
+        return {"initialisations": self.initialisations, "last_init": self.last_init,
+                "converged_at_correction": self.converged_at,
+                "init_seconds": round(self.init_seconds, 3), "particles": particles,
+                "free_area_m2": round(self.localizer.free_area_m2, 1) if self.localizer else None}
+
+    def request_init(self, mean=None, cov=None) -> None:
+        """Localization: the next correction starts a new set around ``mean`` (``(3,)``, map
+        frame) with covariance ``cov`` (``(3, 3)``, x y yaw), or globally (``mean`` None)."""
+        self.pending_init = (None, None) if mean is None else (np.asarray(mean, float).reshape(3),
+                                                               np.asarray(cov, float).reshape(3, 3))
 
     def apply_patch(self, patch: MapPatch) -> int:
         """Bring the likelihood field up to date with a map patch; returns the cells changed.
@@ -202,7 +250,7 @@ class CorrectionStage:
     def correct(self, particles: np.ndarray, log_weights: np.ndarray, ranges: np.ndarray,
                 angles: np.ndarray, range_min: float = 0.0, range_max: float = math.inf) -> Correction:
         """Correct a predicted set with a scan (ranges (B,), beam angles (B,) in the sensor frame)."""
-        t0 = time.perf_counter()
+        t0 = t0_all = time.perf_counter()
         particles = np.asarray(particles, dtype=np.float64).reshape(-1, 3)
         log_w = np.asarray(log_weights, dtype=np.float64)
         ranges, angles, offset = planar_scan(ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset,
@@ -210,6 +258,14 @@ class CorrectionStage:
         pts = scan_to_points(ranges, angles, max(range_min, 1e-6), min(range_max, self.corr_cfg.range_max_m))
         if np.any(offset):
             pts = transform_points(pts, offset)
+        initialising = self.localizer is not None and self.pending_init is not None
+        if initialising:
+            particles = self.localizer.initial_set(pts, self.init_rng, *self.pending_init)
+            log_w = np.full(particles.shape[0], -math.log(particles.shape[0]))
+            self.last_init = "global" if self.pending_init[0] is None else "initial pose"
+            self.pending_init = None
+            self.initialisations += 1
+            self.converged_at = None
         if self.known is not None and pts.shape[0] > 0:
             pts = pts[self._observed(pts, particles[int(np.argmax(log_w))])]
         matched = self.field is not None and pts.shape[0] > 0
@@ -226,6 +282,12 @@ class CorrectionStage:
             particles = particles[idx]
             log_w = np.full(n, -math.log(n))
             self.num_resamples += 1
+        target = self.filter_cfg.num_particles
+        if self.localizer is not None and n != target and self.localizer.converged(particles, log_w):
+            particles, log_w = self.localizer.reduce(particles, log_w, target, self.rng)
+            self.converged_at = self.num_corrections
+        if initialising:
+            self.init_seconds = time.perf_counter() - t0_all
         self.pose = pose
         self.num_corrections += 1
         self.clock.add("resample", t0)

@@ -88,8 +88,13 @@ def write_map(out_dir: str | os.PathLike, occupancy: np.ndarray, resolution: flo
 
 
 def _parse_yaml(path: Path) -> dict[str, str]:
+    try:
+        text = path.read_text(encoding='utf-8')
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f'{path}: cannot read the map yaml ({exc.__class__.__name__}: '
+                         f'{getattr(exc, "strerror", None) or exc})') from None
     out: dict[str, str] = {}
-    for line in path.read_text(encoding='utf-8').splitlines():
+    for line in text.splitlines():
         s = line.split('#', 1)[0].strip()
         if not s or ':' not in s:
             continue
@@ -98,28 +103,41 @@ def _parse_yaml(path: Path) -> dict[str, str]:
     return out
 
 
-def _read_pgm(path: Path) -> np.ndarray:
+def _read_image(path: Path, yaml_path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """The map image as grey levels 0..255 (colour: the mean of the channels, as map_server) and
+    its alpha channel (None without one)."""
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
-        raise ValueError(f'{path}: cannot read image')
-    if img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+        raise ValueError(f'{yaml_path}: image {path}: missing or not an image')
     if img.dtype != np.uint8:
-        raise ValueError(f'{path}: expected an 8-bit image, got {img.dtype}')
-    return img
+        raise ValueError(f'{yaml_path}: image {path}: expected 8 bits per channel, got {img.dtype}')
+    alpha = None
+    if img.ndim == 3:
+        if img.shape[2] in (2, 4):
+            alpha = img[..., -1]
+        img = img[..., :3 if img.shape[2] >= 3 else 1].astype(np.float64).mean(axis=2)
+    return img.astype(np.float64), alpha
 
 
 def read_map(yaml_path: str | os.PathLike) -> tuple[np.ndarray, float, np.ndarray]:
     """Read a map_server map (``.yaml`` + image), as nav2 ``map_server`` loads it.
 
+    ``mode`` trinary (default), scale or raw; ``negate``; ``occupied_thresh`` / ``free_thresh``;
+    ``image`` relative to the yaml or absolute. With ``p = (255 - v) / 255`` (``v / 255`` with
+    negate) for a grey level ``v``: ``p > occupied_thresh`` is 100, ``p < free_thresh`` is 0, the
+    rest -1 (trinary) or ``rint(100 (p - free) / (occupied - free))`` (scale); raw: ``v`` itself
+    (0..100; other values -1). A transparent pixel (alpha < 255) is unknown in scale mode.
+
     Returns
     -------
     occupancy : np.ndarray
-        ``(H, W)`` int8, -1 / 0 / 100 (trinary) or -1 / 0..100 (``scale``); row 0 = lowest y.
+        ``(H, W)`` int8, -1 / 0 / 100 (trinary) or -1 / 0..100 (``scale``, ``raw``); row 0 = lowest y.
     resolution : float
         Cell size (m).
     origin : np.ndarray
         ``(3,)`` ``[x, y, yaw]`` of the lower-left corner.
+
+    Raises ``ValueError`` naming the file and what is wrong.
     """
     yp = Path(yaml_path)
     meta = _parse_yaml(yp)
@@ -132,17 +150,33 @@ def read_map(yaml_path: str | os.PathLike) -> tuple[np.ndarray, float, np.ndarra
         occ_t = float(meta.get('occupied_thresh', YAML_OCCUPIED_THRESH))
         free_t = float(meta.get('free_thresh', YAML_FREE_THRESH))
     except (KeyError, ValueError) as exc:
-        raise ValueError(f'{yp}: bad map yaml ({type(exc).__name__}: {exc})') from exc
+        what = f'missing key {exc}' if isinstance(exc, KeyError) else str(exc)
+        raise ValueError(f'{yp}: bad map yaml ({what})') from None
+    if not (resolution > 0 and np.isfinite(resolution)):
+        raise ValueError(f'{yp}: bad map yaml (resolution must be > 0, got {resolution})')
+    if origin.size not in (2, 3) or not np.isfinite(origin).all():
+        raise ValueError(f'{yp}: bad map yaml (origin must be [x, y, yaw], got {meta["origin"]})')
     mode = meta.get('mode', 'trinary')
-    img = _read_pgm(image).astype(np.float64)
+    if mode not in ('trinary', 'scale', 'raw'):
+        raise ValueError(f"{yp}: bad map yaml (mode must be trinary, scale or raw, got {mode!r})")
+    if not 0.0 <= free_t < occ_t <= 1.0:
+        raise ValueError(f'{yp}: bad map yaml (need 0 <= free_thresh < occupied_thresh <= 1, '
+                         f'got {free_t}, {occ_t})')
+    img, alpha = _read_image(image, yp)
+    occ = np.full(img.shape, -1, dtype=np.int8)
+    if mode == 'raw':
+        ok = img <= 100
+        occ[ok] = img[ok].astype(np.int8)
+        return np.ascontiguousarray(occ[::-1]), resolution, np.resize(origin, 3)
     shade = img / 255.0
     p = shade if negate else 1.0 - shade
-    occ = np.full(img.shape, -1, dtype=np.int8)
     if mode == 'scale':
         mid = (p >= free_t) & (p <= occ_t)
         occ[mid] = np.rint(100.0 * (p[mid] - free_t) / (occ_t - free_t)).astype(np.int8)
     occ[p > occ_t] = 100
     occ[p < free_t] = 0
+    if mode == 'scale' and alpha is not None:
+        occ[alpha < 255] = -1
     return np.ascontiguousarray(occ[::-1]), resolution, np.resize(origin, 3)
 
 

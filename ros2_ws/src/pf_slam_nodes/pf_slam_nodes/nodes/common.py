@@ -30,6 +30,7 @@ CONFIG_SECTIONS: dict[str, type] = {
     "correlation": cfg.CorrelationConfig,
     "resample": cfg.ResampleConfig,
     "laser": cfg.LaserConfig,
+    "localization": cfg.LocalizationConfig,
 }
 
 
@@ -64,6 +65,10 @@ PARAM_DOCS: dict[str, str] = {
     "publish_sensor_tf": "publish base_frame -> the scan's frame on /tf_static from filter.sensor_offset_* / "
                          "laser.extrinsic (off when the bag's /tf_static has it)",
     "expected_observers": "extra subscribers (e.g. pf-slam run's recorder) that must be matched before the replay starts",
+    "mode": "'slam' (build the map) or 'localization' (track the pose on a fixed map: mapper map_file, or any "
+            "map_server's /map; the map is never changed)",
+    "map_file": "mode localization: the map to localize on (map_server .yaml: pf-slam's map.yaml or nav2 map_saver's; "
+                "trinary, scale or raw, negate), published latched on /map; empty: another node publishes /map",
     "map_publish_period_s": "/map, /map_metadata and /path are published this often (wall time), and after the last scan (s)",
     "occupied_thresh": "/map: a cell with occupancy probability >= this is 100 (map_server trinary) (probability)",
     "free_thresh": "/map: a cell with occupancy probability <= this is 0; between the two, -1 (probability)",

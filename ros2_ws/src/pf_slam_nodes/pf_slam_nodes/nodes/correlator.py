@@ -10,6 +10,15 @@ pose estimate: the best particle or the weighted mean, filter.pose_estimate).
 A corrected set (update=true) is scored against the map that holds every scan corrected before
 it: the node waits for the grid of the previous correction, so the result does not depend on
 message timing (same trajectory in one process or many, at any replay rate).
+
+Publishes particlecloud (geometry_msgs/PoseArray, map frame) after each correction.
+
+mode: localization -- the map is fixed: it comes from /map (latched; the mapper loads it from a
+map_server file, or any map_server publishes it), the node waits for it before its first
+correction and never for a grid patch. That correction replaces the set with an initial one
+(global over the map's free space, or around localization.initial_pose_* with
+localization.use_initial_pose); an initialpose message (PoseWithCovarianceStamped, rviz2's
+"2D Pose Estimate") re-initialises the set around it at the next correction (core/localization.py).
 """
 from __future__ import annotations
 
@@ -17,14 +26,15 @@ from collections import deque
 
 import numpy as np
 
+from geometry_msgs.msg import PoseArray, PoseWithCovarianceStamped
 from nav_msgs.msg import OccupancyGrid
 from pf_slam_interfaces.msg import ParticleArray
 from rclpy.node import Node
 from sensor_msgs.msg import LaserScan
 
-from ..core.geometry import compose
+from ..core.geometry import compose, quat_to_yaw
 from ..core.stages import CorrectionStage, MapPatch
-from ..ros import convert, qos, topics
+from ..ros import cdr, convert, qos, topics
 from .common import (ScanQueue, announce_when_matched, declare_config, param, run_node, scan_fields,
                      status_publisher)
 
@@ -35,8 +45,18 @@ class Correlator(Node):
         filter_cfg = declare_config(self, "filter")
         self.stage = CorrectionStage(filter_cfg, declare_config(self, "grid"),
                                      declare_config(self, "correlation"), declare_config(self, "resample"),
-                                     declare_config(self, "laser"))
+                                     declare_config(self, "laser"), declare_config(self, "localization"))
+        self.mode = param(self, "mode", "slam")
+        if self.mode not in ("slam", "localization"):
+            raise ValueError(f"node correlator: parameter 'mode' must be 'slam' or 'localization', got {self.mode!r}")
         self.map_frame = param(self, "map_frame", "map")
+        self.fixed_map: bytes | None = None  # localization: the map's cells, to notice a new one
+        self.pub_cloud = self.create_publisher(PoseArray, topics.PARTICLE_CLOUD, qos.outputs(5))
+        self.cloud_cdr = cdr.PoseArrayWriter(self.map_frame)
+        if self.mode == "localization":
+            self.create_subscription(OccupancyGrid, topics.MAP, self._on_map, qos.latched())
+            self.create_subscription(PoseWithCovarianceStamped, topics.INITIAL_POSE, self._on_initial_pose,
+                                     qos.outputs(5))
         self.scans = ScanQueue()
         self.predicted: deque[ParticleArray] = deque()
         self.grids_received = 0
@@ -47,7 +67,14 @@ class Correlator(Node):
         self.create_subscription(LaserScan, topics.SCAN_CORRECTED, self._on_scan, qos.pipeline(), raw=True)
         self.create_subscription(ParticleArray, topics.PARTICLES_PREDICTED, self._on_predicted, qos.pipeline())
         self.create_subscription(OccupancyGrid, topics.GRID, self._on_grid, qos.pipeline(10))
-        status_publisher(self, lambda: {"faults": {"scans_lost_correlator": self.scans.lost}})
+        self.particles_now = 0
+        self._publish_status = status_publisher(self, self._status)
+
+    def _status(self) -> dict:
+        out = {"faults": {"scans_lost_correlator": self.scans.lost}}
+        if self.mode == "localization":
+            out["localization"] = self.stage.localization_status(self.particles_now)
+        return out
 
     def _on_scan(self, raw: bytes) -> None:
         self.scans.append(raw)
@@ -63,13 +90,53 @@ class Correlator(Node):
         self.grids_received += 1
         self._drain()
 
+    def _on_map(self, msg: OccupancyGrid) -> None:
+        """Localization: the fixed map (again: used only if its cells or geometry changed)."""
+        occ, res, origin = convert.msg_to_grid(msg)
+        key = bytes(msg.data) + repr((res, origin, occ.shape)).encode()
+        if key == self.fixed_map:
+            return
+        q = msg.info.origin.orientation
+        if abs(quat_to_yaw(q.x, q.y, q.z, q.w)) > 1e-9:
+            self.get_logger().error("map: an OccupancyGrid whose origin is rotated is not supported; map ignored")
+            return
+        self.stage.set_map(occ, res, origin)
+        self.fixed_map = key
+        self.get_logger().info(f"fixed map: {occ.shape[1]} x {occ.shape[0]} cells of {res:g} m, "
+                               f"{self.stage.localizer.free_area_m2:.0f} m^2 free")
+        self._drain()
+
+    def _on_initial_pose(self, msg: PoseWithCovarianceStamped) -> None:
+        """rviz2's "2D Pose Estimate": re-initialise the set around it at the next correction."""
+        frame = msg.header.frame_id.lstrip("/")
+        if frame and frame != self.map_frame:
+            self.get_logger().warn(f"initialpose: frame {msg.header.frame_id!r} is not {self.map_frame!r}; ignored")
+            return
+        p, q = msg.pose.pose.position, msg.pose.pose.orientation
+        mean = np.array([p.x, p.y, quat_to_yaw(q.x, q.y, q.z, q.w)])
+        cov = np.asarray(msg.pose.covariance, dtype=np.float64).reshape(6, 6)[np.ix_([0, 1, 5], [0, 1, 5])]
+        if not (np.isfinite(mean).all() and np.isfinite(cov).all()):
+            self.get_logger().warn("initialpose: NaN/inf in the pose or its covariance; ignored")
+            return
+        if not cov.any():  # no covariance given: the parameters' spread
+            from ..core.localization import initial_cov
+            cov = initial_cov(self.stage.loc_cfg)
+        self.stage.request_init(mean, cov)
+        self.get_logger().info(f"initialpose x {mean[0]:.3f} y {mean[1]:.3f} yaw {np.degrees(mean[2]):.1f} deg: "
+                               "particles re-initialised around it at the next correction")
+
     def _drain(self) -> None:
         # scans and sets both arrive in scan order; the n-th scan is the n-th update's
         while self.predicted:
             pa = self.predicted[0]
             stamp = convert.stamp_to_ns(pa.header.stamp)  # the scan's
             if pa.update:
-                if self.grids_received < self.corrections_sent:
+                if self.mode == "localization":
+                    if self.stage.localizer is None:  # the fixed map is not here yet
+                        self.get_logger().warn("mode localization: no map on /map yet (mapper map_file, or a "
+                                               "map_server); corrections wait for it", throttle_duration_sec=10.0)
+                        return
+                elif self.grids_received < self.corrections_sent:
                     return  # the map of the previous correction is not here yet
                 if not self.scans.has(self.corrections_sent, stamp):
                     return
@@ -83,6 +150,10 @@ class Correlator(Node):
                 res = self.stage.correct(particles, log_w, *scan_fields(scan))
                 particles, log_w, pose = res.particles, res.log_weights, res.pose
                 self.corrections_sent += 1
+                self.pub_cloud.publish(self.cloud_cdr.pack(particles, stamp))
+                if self.mode == "localization" and particles.shape[0] != self.particles_now:
+                    self.particles_now = particles.shape[0]
+                    self._publish_status()
             else:
                 pose = compose(self.stage.pose, pa.pending_delta)
             self.pub_updated.publish(convert.particles_to_msg(

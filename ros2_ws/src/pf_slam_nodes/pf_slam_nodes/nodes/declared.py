@@ -17,7 +17,7 @@ from typing import Any
 NODE_SECTIONS: dict[str, tuple[str, ...]] = {
     "bag_replay": (),
     "predictor": ("filter", "motion", "wheels"),  # wheels: with odometry_source encoders only
-    "correlator": ("filter", "grid", "correlation", "resample", "laser"),
+    "correlator": ("filter", "grid", "correlation", "resample", "laser", "localization"),
     "mapper": ("filter", "grid", "laser"),
     "texture": ("texture",),
 }
@@ -32,9 +32,9 @@ NODE_PLAIN: dict[str, dict[str, Any]] = {
                   "time_gap_s": 60.0, "expected_observers": 0, "fog_format": "none",
                   "odom_frame": "odom", "base_frame": "base_link", "publish_odom_tf": True,
                   "odom_wait_scans": 50, "stamp_offset_s": 2.0},
-    "correlator": {"map_frame": "map", "expected_observers": 0},
+    "correlator": {"map_frame": "map", "expected_observers": 0, "mode": "slam"},
     "mapper": {**_FRAMES, "occupied_thresh": 0.65, "free_thresh": 0.25, "map_publish_period_s": 1.0,
-               "publish_sensor_tf": True},
+               "publish_sensor_tf": True, "mode": "slam", "map_file": ""},
     "texture": {"map_frame": "map", "base_frame": "base_link", "publish_period_s": 1.0, "calibration_dir": "",
                 "camera_extrinsic": [0.0] * 12, "queue_depth": 1, "max_pending_pairs": 10, "final_idle_s": 2.0,
                 "worker_nice": 10, "pose_buffer_size": 3000, "left_topic": "/stereo/left/image_raw",
@@ -55,7 +55,7 @@ def section_class(section: str) -> type:
     from ..core import config as cfg
     return {"filter": cfg.FilterConfig, "motion": cfg.OdometryMotionConfig, "diff_drive": cfg.DiffDriveConfig,
             "wheels": cfg.WheelsConfig, "grid": cfg.GridConfig, "correlation": cfg.CorrelationConfig, "resample": cfg.ResampleConfig,
-            "laser": cfg.LaserConfig}[section]
+            "laser": cfg.LaserConfig, "localization": cfg.LocalizationConfig}[section]
 
 
 def _field_default(f: dataclasses.Field) -> Any:

@@ -11,6 +11,11 @@ odom_T_base^-1, at every correction: between corrections map -> odom does not ch
 poses are then the corrected pose composed with the odometry increment), /tf_static (base_frame ->
 the scan's frame from filter.sensor_offset_* / laser.extrinsic, once, if publish_sensor_tf).
 /map holds map_server trinary values: 100 / 0 / -1 by occupied_thresh / free_thresh.
+
+mode: localization -- the map is map_file (a map_server .yaml), loaded at start-up and published
+latched on /map as loaded (at once, for the correlator, then like a built map); without map_file
+another node (nav2's map_server) publishes /map and this node publishes none. No scan is
+integrated and no grid patch is sent. map -> odom, /path and /tf_static as in SLAM.
 """
 from __future__ import annotations
 
@@ -26,7 +31,7 @@ from tf2_msgs.msg import TFMessage
 
 from ..core.geometry import compose, matrix_to_quat, relative_pose
 from ..core.stages import MappingStage
-from ..io.mapfile import trinary
+from ..io.mapfile import read_map, trinary
 from ..ros import convert, qos, topics
 from .common import (ScanQueue, announce_when_matched, declare_config, param, run_node, scan_fields,
                      status_publisher)
@@ -43,6 +48,17 @@ class Mapper(Node):
         self.thresholds = (param(self, "occupied_thresh", 0.65), param(self, "free_thresh", 0.25))
         trinary(np.zeros((1, 1)), *self.thresholds)  # bad thresholds fail at start-up
         period = param(self, "map_publish_period_s", 1.0)
+        self.mode = param(self, "mode", "slam")
+        map_file = param(self, "map_file", "")
+        self.fixed_map: OccupancyGrid | None = None
+        if self.mode not in ("slam", "localization"):
+            raise ValueError(f"node mapper: parameter 'mode' must be 'slam' or 'localization', got {self.mode!r}")
+        self.localize = self.mode == "localization"
+        if self.localize and map_file:
+            occ, res, origin = read_map(map_file)
+            if abs(origin[2]) > 1e-9:
+                raise ValueError(f"{map_file}: origin yaw {origin[2]!r}: a rotated map is not supported")
+            self.fixed_map = convert.grid_to_msg(occ, res, origin[:2], 0, self.map_frame)
         self.scan_topic = self.resolve_topic_name(topics.SCAN)
         self.scans = ScanQueue()
         self.updates: deque[ParticleArray] = deque()
@@ -63,6 +79,8 @@ class Mapper(Node):
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
         self.create_timer(period, self.publish_map)
+        if self.fixed_map is not None:
+            self.publish_map()  # latched: the correlator needs it before the first correction
         status_publisher(self, lambda: {"faults": {"scans_lost_mapper": self.scans.lost,
                                                    "map_beyond_bound": self._beyond_bound()}})
         self._warned_bound = False
@@ -99,16 +117,8 @@ class Mapper(Node):
                                            "than the graph): not mapped", throttle_duration_sec=5.0)
                 elif self.pub_tf_static is not None:
                     self._publish_sensor_tf(scan.header.frame_id, stamp)
-                patch = self.stage.integrate(pose, *scan_fields(scan))
-                g = self.stage.grid
-                if g.scans_beyond_bound and not self._warned_bound:
-                    self._warned_bound = True
-                    self.get_logger().warn(
-                        f"scan {pa.scan_index} reaches beyond what grid.max_cells ({g.cfg.max_cells}) lets the "
-                        f"map grow to ({g.height} x {g.width} cells): those cells are not mapped (counted: "
-                        "faults map_beyond_bound)")
-                self.pub_grid.publish(convert.grid_to_msg(patch.occupancy, patch.resolution,
-                                                          patch.origin, stamp, self.map_frame))
+                if not self.localize:
+                    self._integrate(pa, pose, scan, stamp)
             map_to_odom = compose(pose, relative_pose(np.asarray(pa.odom_pose), np.zeros(3)))
             self.pub_tf.publish(TFMessage(transforms=[
                 convert.transform(self.map_frame, self.odom_frame, map_to_odom, stamp)]))
@@ -116,6 +126,19 @@ class Mapper(Node):
             self.last_index = pa.scan_index
             self.last_stamp = stamp
         self._maybe_finish()
+
+    def _integrate(self, pa: ParticleArray, pose: np.ndarray, scan, stamp: int) -> None:
+        """SLAM: the scan into the grid at the pose; its patch to the correlator."""
+        patch = self.stage.integrate(pose, *scan_fields(scan))
+        g = self.stage.grid
+        if g.scans_beyond_bound and not self._warned_bound:
+            self._warned_bound = True
+            self.get_logger().warn(
+                f"scan {pa.scan_index} reaches beyond what grid.max_cells ({g.cfg.max_cells}) lets the "
+                f"map grow to ({g.height} x {g.width} cells): those cells are not mapped (counted: "
+                "faults map_beyond_bound)")
+        self.pub_grid.publish(convert.grid_to_msg(patch.occupancy, patch.resolution,
+                                                  patch.origin, stamp, self.map_frame))
 
     def _publish_sensor_tf(self, frame: str, stamp: int) -> None:
         """base_frame -> the scan's frame (latched, once): the laser mounting the SLAM uses."""
@@ -137,10 +160,16 @@ class Mapper(Node):
             self.total = None  # publish the final map once
 
     def publish_map(self) -> None:
-        if not self.stage.ready:
+        if self.localize:  # the loaded map, unchanged (without map_file: another node's /map)
+            if self.fixed_map is None:
+                return
+            msg = self.fixed_map
+            msg.header.stamp = msg.info.map_load_time = convert.ns_to_stamp(self.last_stamp)
+        elif not self.stage.ready:
             return
-        occ, res, origin = self.stage.map_occupancy()
-        msg = convert.grid_to_msg(trinary(occ, *self.thresholds), res, origin, self.last_stamp, self.map_frame)
+        else:
+            occ, res, origin = self.stage.map_occupancy()
+            msg = convert.grid_to_msg(trinary(occ, *self.thresholds), res, origin, self.last_stamp, self.map_frame)
         self.pub_map.publish(msg)
         self.pub_meta.publish(msg.info)
         path = Path()

@@ -209,6 +209,28 @@ class TransformWriter:
                          self._tf.pack(float(pose[0]), float(pose[1]), 0.0, *yaw_to_quat(float(pose[2])))))
 
 
+class PoseArrayWriter:
+    """Serializes planar poses ``(N, 3)`` as geometry_msgs/PoseArray (little-endian CDR) for one
+    frame, in one numpy pass: the particle cloud (thousands of particles after a global
+    localization) without a Python object per pose."""
+
+    def __init__(self, frame_id: str) -> None:
+        name = frame_id.encode() + b"\0"
+        head = struct.pack("<I", len(name)) + name  # after the 8-byte stamp
+        head += b"\0" * ((-(8 + len(head))) % 4)  # the sequence count is 4-aligned
+        self._frame = head
+        self._pad = b"\0" * ((-(8 + len(head) + 4)) % 8)  # the poses' doubles are 8-aligned
+
+    def pack(self, poses: np.ndarray, stamp_ns: int) -> bytes:
+        p = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+        body = np.zeros((p.shape[0], 7))
+        body[:, 0], body[:, 1] = p[:, 0], p[:, 1]
+        body[:, 5], body[:, 6] = np.sin(0.5 * p[:, 2]), np.cos(0.5 * p[:, 2])
+        return b"".join((_LITTLE_ENDIAN, _STAMP.pack(stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000),
+                         self._frame, struct.pack("<I", p.shape[0]), self._pad if p.shape[0] else b"",
+                         body.astype("<f8").tobytes()))
+
+
 def tf_message_stamp(raw: bytes) -> int | None:
     """tf2_msgs/TFMessage bytes -> the first transform's header stamp (ns); None if empty."""
     r = CdrReader(raw, "tf2_msgs/TFMessage")

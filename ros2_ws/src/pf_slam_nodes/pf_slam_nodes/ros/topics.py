@@ -23,3 +23,5 @@ REPLAY_STATUS = "pf_slam/replay_status"  # bag_replay -> all: end of bag
 REPLAY_STALL = "pf_slam/replay_stall"  # bag_replay -> predictor: stopped at max_in_flight, counts so far
 READY = "pf_slam/ready"  # each stage, once its outputs are matched: the replay may start
 STATUS = "pf_slam/status"  # nodes -> recorder: JSON (fault counters), latched
+INITIAL_POSE = "initialpose"  # localization: rviz2's "2D Pose Estimate" (PoseWithCovarianceStamped)
+PARTICLE_CLOUD = "particlecloud"  # correlator -> users: the particles after each correction (PoseArray)

@@ -147,6 +147,7 @@ def build_summary(plan: RunPlan, dom: RosDomain, done: GraphOutcome, extra: dict
         "odom_sync": checks["odom_sync"],
         **({"timestamps": checks["timestamps"]} if checks["timestamps"] else {}),
         **({"gyro": gyro} if (gyro := rec.node_status.get("predictor", {}).get("gyro")) else {}),
+        **({"localization": loc} if (loc := rec.node_status.get("correlator", {}).get("localization")) else {}),
         "complete": stopped_by is None,
         **({} if stopped_by is None else {"stopped_by": stopped_by}),
         **extra,

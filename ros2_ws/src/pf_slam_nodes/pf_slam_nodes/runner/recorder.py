@@ -227,6 +227,8 @@ class ResultRecorder:
         is written by finish()."""
         from ..ros import convert
         stamp = convert.stamp_ns_from_cdr(raw)
+        if stamp == 0:  # a fixed map (localization) published before any scan: its later copies carry stamps
+            return
         if self.last_map_ns is None or stamp - self.last_map_ns >= self.map_every_ns:
             self.bag.write_raw("/map", stamp, raw)
             self.last_map_ns = stamp
