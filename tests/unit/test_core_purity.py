@@ -156,3 +156,18 @@ def test_one_quaternion_to_matrix_formula():
     hits = [p.relative_to(PKG).as_posix() for p in sorted(PKG.rglob("*.py"))
             for _ in term.finditer(p.read_text(encoding="utf-8"))]
     assert hits == ["core/geometry.py"], hits
+
+
+def test_the_runtime_package_does_not_import_the_development_tools():
+    """Simulators and benches live in pf_slam_tools; the runtime imports them only in the CLI's
+    development subcommands (simulate*, texture, bench), lazily, inside functions."""
+    offenders = []
+    for path in sorted(PKG.rglob("*.py")):
+        tree = ast.parse(path.read_text(), filename=str(path))
+        for node in ast.walk(tree):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            if any(n.split(".")[0] == "pf_slam_tools" for n in names) and path.name != "cli.py":
+                offenders.append(f"{path.relative_to(PKG)}:{node.lineno}")
+    assert not offenders, offenders
+    assert not (PKG / "sim").exists() and not (PKG / "bench").exists()
