@@ -28,7 +28,7 @@ from ..core.geometry import compose, matrix_to_quat, relative_pose
 from ..core.stages import MappingStage
 from ..io.mapfile import trinary
 from ..ros import convert, qos, topics
-from .common import (ScanQueue, announce_when_matched, declare_config, param, run_node, scan_fields,
+from .common import (ScanQueue, announce_when_matched, declare_config, mount_of, param, run_node, scan_fields,
                      status_publisher)
 
 
@@ -99,7 +99,7 @@ class Mapper(Node):
                                            "than the graph): not mapped", throttle_duration_sec=5.0)
                 elif self.pub_tf_static is not None:
                     self._publish_sensor_tf(scan.header.frame_id, stamp)
-                patch = self.stage.integrate(pose, *scan_fields(scan))
+                patch = self.stage.integrate(pose, *scan_fields(scan), extrinsic=mount_of(pa))
                 g = self.stage.grid
                 if g.scans_beyond_bound and not self._warned_bound:
                     self._warned_bound = True
