@@ -248,5 +248,14 @@ def evaluate_run(out: Path, synth: ThorSynth) -> dict:
     e = b - a
     u = np.clip(((xy[:, None, :] - a[None]) * e[None]).sum(-1) / (e * e).sum(-1)[None], 0, 1)
     d = np.linalg.norm(xy[:, None, :] - (a[None] + u[..., None] * e[None]), axis=-1).min(axis=1)
-    return {"ate_m": ate["rmse"], "n": len(pairs), "map_f1": f1["f1"], "precision": f1["precision"],
-            "recall": f1["recall"], "occupied": int(len(xy)), "false_walls": int((d > 0.3).sum())}
+    out_d = {"ate_m": ate["rmse"], "n": len(pairs), "map_f1": f1["f1"], "precision": f1["precision"],
+             "recall": f1["recall"], "occupied": int(len(xy)), "false_walls": int((d > 0.3).sum())}
+    if (out / "texture.png").exists():
+        from pf_slam_nodes.core.texture import colour_error
+        from pf_slam_nodes.io.texture_files import read_floor_texture
+        rgb, tres, torigin = read_floor_texture(out / "texture.png", out / "map.yaml")
+        rr, cc = np.mgrid[0:rgb.shape[0], 0:rgb.shape[1]]
+        gt = floor_colour(torigin[0] + (cc + 0.5) * tres, torigin[1] + (rr + 0.5) * tres)
+        err = colour_error(rgb, rgb.any(axis=2), np.clip(np.rint(gt), 0, 255).astype(np.uint8))
+        out_d.update(texture_error=err["mean_abs_rgb_error"], texture_cells=err["cells_coloured"])
+    return out_d
