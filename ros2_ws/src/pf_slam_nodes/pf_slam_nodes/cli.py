@@ -37,6 +37,16 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("dat")
     m.add_argument("out_bag")
     m.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
+    th = csub.add_parser("thor", help="THOR humanoid .mat files (lidar, joint[, RGB, depth]) -> /scan /odom "
+                         "/joint_states /tf (moving head) /tf_static [/kinect/*] (docs/thor.md)")
+    th.add_argument("--lidar", required=True, metavar="LIDAR.mat")
+    th.add_argument("--joint", required=True, metavar="JOINT.mat")
+    th.add_argument("--rgb", metavar="RGB.mat", help="Kinect RGB frames (with --depth)")
+    th.add_argument("--depth", metavar="DEPTH.mat", help="Kinect depth frames (with --rgb)")
+    th.add_argument("out_bag")
+    th.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
+    th.add_argument("--rgb-scale", type=float, default=1.0, metavar="S",
+                    help="shrink the 1920x1080 RGB images (and their CameraInfo) by S in (0, 1] (default 1)")
 
     r = sub.add_parser("run", help="replay a bag through the SLAM graph and write map/trajectory")
     r.add_argument("bag")
@@ -84,16 +94,21 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--json", action="store_true", help="print JSON")
 
     si = sub.add_parser("simulate-indoor", help="write the seeded indoor sample bag with ground truth")
-    sc = sub.add_parser("simulate", help="write a seeded KAIST-layout car dataset with ground truth")
+    sc = sub.add_parser("simulate", help="write a seeded KAIST-layout car dataset with ground truth "
+                        "('pf-slam simulate thor ...': the THOR humanoid, see simulate-thor)")
+    st = sub.add_parser("simulate-thor", help="write a seeded THOR humanoid walk (.mat files) with ground truth; "
+                        "also spelled 'pf-slam simulate thor'")
     try:  # simulators and benches are the development package pf_slam_tools (installed by make setup)
         from pf_slam_tools.sim.car import add_arguments as add_car_arguments
         from pf_slam_tools.sim.indoor import add_arguments
+        from pf_slam_tools.sim.thor import add_arguments as add_thor_arguments
     except ModuleNotFoundError:
-        for p in (si, sc):
+        for p in (si, sc, st):
             p.add_argument("args", nargs=argparse.REMAINDER)
     else:
         add_arguments(si)
         add_car_arguments(sc)
+        add_thor_arguments(st)
 
     t = sub.add_parser("texture", add_help=False,
                        help="texture map offline: a simulated drive vs its floor truth, or the real stereo pair "
@@ -131,6 +146,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:2] == ["simulate", "thor"]:  # `pf-slam simulate thor ...` = `pf-slam simulate-thor ...`
+        argv = ["simulate-thor"] + argv[2:]
     args = build_parser().parse_args(argv)
     try:
         return _dispatch(args)
@@ -157,6 +175,10 @@ def _dispatch(args: argparse.Namespace) -> int:
             from .io.kaist import convert_kaist
             rep = convert_kaist(args.dataset_dir, args.out_bag, storage=args.storage, fog_batch=args.fog_batch,
                                 fog_format=args.fog_format, images=not args.no_images)
+        elif args.format == "thor":
+            from .io.thor import convert_thor
+            rep = convert_thor(args.lidar, args.joint, args.out_bag, rgb_path=args.rgb, depth_path=args.depth,
+                               storage=args.storage, rgb_scale=args.rgb_scale)
         else:
             rep = convert.convert_mines(args.dat, args.out_bag, storage=args.storage)
         print(rep.summary())
@@ -184,6 +206,9 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "simulate":
         from pf_slam_tools.sim.car import run_args as run_car
         return run_car(args)
+    if args.command == "simulate-thor":
+        from pf_slam_tools.sim.thor import run_args as run_thor
+        return run_thor(args)
     if args.command == "params":
         from . import paramdoc
         table = paramdoc.markdown_table(paramdoc.declared_parameters(args.bag or paramdoc.SAMPLE_BAG))
