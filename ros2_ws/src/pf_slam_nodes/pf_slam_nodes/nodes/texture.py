@@ -123,6 +123,7 @@ class _Pair:
     right: Image
     pose: Optional[np.ndarray] = None
     mount: Optional[tuple[np.ndarray, np.ndarray]] = None  # depth mode: the RGB camera in the base frame
+    rgb_from_depth: Optional[tuple[np.ndarray, np.ndarray]] = None  # depth mode: at their two stamps
 
 
 class TextureNode(Node):
@@ -429,12 +430,17 @@ class TextureNode(Node):
                 j = min(j, len(t) - 1)
                 if self.mode == "depth":
                     frame = pair.left.header.frame_id.lstrip("/")
-                    links = [b for b in self._dynamic.values()]
-                    if any(not b.covers(pair.stamp_ns) for _, b in links) and not self._replay_done:
-                        break  # the moving links have not reached the image's stamp yet
-                    pair.mount = self._chain_at(frame, pair.stamp_ns)
-                    if pair.mount is None:
+                    rgb_stamp = convert.stamp_to_ns(pair.left.header.stamp)
+                    latest = max(rgb_stamp, pair.stamp_ns)
+                    if any(not b.covers(latest) for _, b in self._dynamic.values()) and not self._replay_done:
+                        break  # the moving links have not reached the images' stamps yet
+                    pair.mount = self._chain_at(frame, rgb_stamp)
+                    depth_mount = self._chain_at(pair.right.header.frame_id.lstrip("/"), pair.stamp_ns)
+                    if pair.mount is None or depth_mount is None:
                         break  # the camera's chain to the base is not known yet
+                    # the depth camera at its stamp in the RGB camera at its own (the head moves between)
+                    r_c, t_c = pair.mount
+                    pair.rgb_from_depth = (r_c.T @ depth_mount[0], r_c.T @ (depth_mount[1] - t_c))
                 pair.pose = interpolate_poses(t[[i, j]], np.array([self._pose_v[i], self._pose_v[j]]),
                                               np.array([pair.stamp_ns]))[0]
                 self._awaiting.popleft()
@@ -506,7 +512,7 @@ class TextureNode(Node):
         rgb = image_array(pair.left)
         if pair.left.encoding.lower() == "bgr8":
             rgb = rgb[..., ::-1]
-        res = self._texturer.process(depth_array(pair.right), rgb, pair.mount, pair.pose)
+        res = self._texturer.process(depth_array(pair.right), rgb, pair.mount, pair.pose, pair.rgb_from_depth)
         with self.lock:
             self.texmap.add(res.xy_world, res.rgb)
             self._dirty = True

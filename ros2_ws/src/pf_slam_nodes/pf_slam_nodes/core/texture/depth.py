@@ -127,7 +127,8 @@ class DepthTexturer:
         return plane, True
 
     def process(self, depth_mm: np.ndarray, rgb: np.ndarray, base_from_rgb: tuple[np.ndarray, np.ndarray],
-                pose: Optional[np.ndarray] = None) -> DepthFrameResult:
+                pose: Optional[np.ndarray] = None,
+                rgb_from_depth: Optional[tuple[np.ndarray, np.ndarray]] = None) -> DepthFrameResult:
         """One pair -> floor samples.
 
         Parameters
@@ -140,6 +141,11 @@ class DepthTexturer:
             The RGB camera's optical frame in the base frame at the image stamp.
         pose : (3,), optional
             The base's 2D pose ``(x, y, theta)`` in the world at the stamp.
+        rgb_from_depth : (R (3, 3), t (3,)), optional
+            The depth camera (at the depth image's stamp) in the RGB camera (at the colour
+            image's stamp), when the two are not taken at once and the head moves between them
+            (THOR: RGB 15 ms after depth); ``base_from_rgb`` is then the RGB camera's at its own
+            stamp. Default: the camera's fixed ``P_rgb = R P_depth + T``.
         """
         cfg, cam = self.cfg, self.camera
         t0 = time.perf_counter()
@@ -148,7 +154,9 @@ class DepthTexturer:
         z = d[rows, cols].astype(np.float64) * 1e-3
         ok = (z >= cfg.depth_min_m) & (z <= cfg.depth_max_m)
         p_d = rays[:, ok] * z[ok]
-        p_c = cam.rot @ p_d + cam.t[:, None]  # the RGB camera's optical frame
+        r_cd, t_cd = (cam.rot, cam.t) if rgb_from_depth is None else (np.asarray(a, dtype=np.float64)
+                                                                        for a in rgb_from_depth)
+        p_c = r_cd @ p_d + np.reshape(t_cd, (3, 1))  # the RGB camera's optical frame
         kr = cam.k_rgb
         h, w = rgb.shape[:2]
         with np.errstate(divide="ignore", invalid="ignore"):
