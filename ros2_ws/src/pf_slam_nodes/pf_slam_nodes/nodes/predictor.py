@@ -109,7 +109,10 @@ class Predictor(Node):
         if laser_cfg.dynamic_frame:
             frame = lambda name: str(self.get_parameter(name).value).lstrip("/")  # noqa: E731 (declared above)
             self.mount_frames = (frame("base_frame"), laser_cfg.dynamic_frame.lstrip("/"))
-            self._own_tf = {(frame("odom_frame"), frame("base_frame")), (frame("map_frame"), frame("odom_frame"))}
+            # the graph's own /tf (the mapper's map -> odom, this node's odom -> base when it publishes
+            # it) is not the bag's: not counted against the replay's /tf count
+            self._own_tf = {(frame("map_frame"), frame("odom_frame"))} | (
+                {(frame("odom_frame"), frame("base_frame"))} if self.pub_tf is not None else set())
             self.create_subscription(TFMessage, topics.TF, self._on_tf, qos.pipeline(10000))
         # every decision is the scheduler's; its actions are published as they are decided
         self.sched = sch.PredictorScheduler(filter_cfg, motion_cfg, source, odom_sync, wheels_cfg,
