@@ -214,7 +214,9 @@ def test_an_explicit_domain_is_open_so_a_viewer_can_watch(solo, tmp_path, ros_do
         ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(viewer)
         out = tmp_path / "open"
-        p = _start(out, "single", "--domain", str(ros_domain),
+        # --delay: the replay waits 3 s once the graph is up, so the viewer has discovered the run
+        # before its first scan even on a loaded machine (discovery is not instant)
+        p = _start(out, "single", "--domain", str(ros_domain), "--delay", "3",
                    env=dict(_user_env(), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST"))
         while p.poll() is None:
             ex.spin_once(timeout_sec=0.01)

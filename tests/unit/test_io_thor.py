@@ -12,7 +12,7 @@ import pytest
 import scipy.io
 
 from pf_slam_nodes import cli
-from pf_slam_nodes.core.geometry import quat_to_matrix
+from pf_slam_nodes.core.geometry import quat_to_matrix, rpy_to_quat
 from pf_slam_nodes.io import thor as th
 from pf_slam_nodes.io.bag import bag_info, deserialize, read_bag, stamp_ns_of
 
@@ -199,9 +199,8 @@ def test_static_transforms_follow_the_contract():
     # head: positive pitch looks down, positive neck yaw looks left
     np.testing.assert_allclose(th.head_rotation(0.0, 0.3) @ [1, 0, 0], [math.cos(0.3), 0, -math.sin(0.3)])
     np.testing.assert_allclose(th.head_rotation(0.4, 0.0) @ [1, 0, 0], [math.cos(0.4), math.sin(0.4), 0])
-    q = th.head_quaternion(np.array([0.4, -1.1]), np.array([0.3, 0.7]))
-    for k in range(2):
-        np.testing.assert_allclose(quat_to_matrix(*q[k]), th.head_rotation([0.4, -1.1][k], [0.3, 0.7][k]),
+    for neck, pitch in ((0.4, 0.3), (-1.1, 0.7)):   # the converter's quaternion: roll 0, pitch, yaw
+        np.testing.assert_allclose(quat_to_matrix(*rpy_to_quat((0.0, pitch, neck))), th.head_rotation(neck, pitch),
                                    atol=1e-12)
 
 
@@ -281,12 +280,13 @@ def test_convert_hand_made_files(tmp_path):
     assert stamps == sorted(stamps)
     assert msgs[0][0] == '/tf_static'
     by = {}
-    for t, s, m in msgs:
+    for t, _, m in msgs:
         by.setdefault(t, []).append(m)
     scan = by['/scan'][2]
     assert scan.header.frame_id == 'lidar' and len(scan.ranges) == 1081
     assert scan.angle_min == pytest.approx(-2.35619449) and scan.angle_increment == pytest.approx(0.00436332313)
-    assert scan.angle_max == pytest.approx(2.35619449) and (scan.range_min, scan.range_max) == pytest.approx((0.1, 30.0))
+    assert scan.angle_max == pytest.approx(2.35619449)
+    assert (scan.range_min, scan.range_max) == pytest.approx((0.1, 30.0))
     assert stamp_ns_of(scan) == round((T0 + 0.05) * 1e6) * 1000
     np.testing.assert_allclose(scan.ranges, _scan(2)[0])
     od = by['/odom'][3]

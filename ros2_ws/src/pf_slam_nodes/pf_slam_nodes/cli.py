@@ -80,6 +80,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="run on ROS domain N with the normal discovery, so rviz2 or Foxglove can watch "
                         "(so does a set ROS_DOMAIN_ID); default: isolated on a free domain held by the run")
     r.add_argument("--no-record", action="store_true", help="do not write OUT/result.mcap")
+    r.add_argument("--delay", type=float, metavar="S", default=0.0,
+                   help="start the replay S seconds after the graph is up (time for rviz2/Foxglove on --domain "
+                        "to discover the run; results unchanged)")
     r.add_argument("--record-map-every", type=float, metavar="S",
                    help="result.mcap: a /map every S seconds of bag time (default: bag duration / 20; "
                         "the final map always)")

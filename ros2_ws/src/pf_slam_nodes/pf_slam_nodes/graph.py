@@ -35,6 +35,7 @@ from .runner.outputs import (RunResult, _OutDir, _stage_split, _write_outputs, _
                              build_summary)
 from .runner.params import (CLI_FLAGS, _default_particles, check_names, check_node_values, flatten,  # noqa: F401
                             load_params, node_params, params_topics, unflatten)
+from .runner.sample import BagSample, sample_bag  # noqa: F401
 from .runner.recorder import ResultRecorder, _drain_result, _message_class, _Recorder  # noqa: F401
 from .runner.supervise import (STOP_SIGNALS, GraphOutcome, _catch_stop_signals, _exit_text,  # noqa: F401
                                _last_line, _make_node, _remap_args, _spawn, _stop_children, make_executor,
@@ -105,11 +106,12 @@ def _plan(bag: str, params_file: str | None, rate: str, processes: str, override
 
 def _inspect_bag(bag: str, info: dict, inputs: dict[str, str], user: list[dict]) -> tuple[LidarMount, dict]:
     """The lidar's mount (/tf_static, the base frame by /tf or the user's base_frame) and the
-    header stamps of the scans and the odometry (inspect_stamps)."""
+    header stamps of the scans and the odometry (inspect_stamps), from one pass over the bag."""
     user_mapper = node_params(user, "mapper")
-    mount = lidar_mount(bag, info, inputs, base_frame=user_mapper.get("base_frame"),
+    sample = sample_bag(bag, info, inputs)
+    mount = lidar_mount(sample, info, inputs, base_frame=user_mapper.get("base_frame"),
                         odom_frame=str(user_mapper.get("odom_frame", "odom")))
-    stamps = inspect_stamps(bag, inputs)
+    stamps = inspect_stamps(sample, inputs)
     return mount, stamps
 
 
@@ -238,4 +240,9 @@ def _cli_overrides(args: Any) -> dict[str, dict[str, Any]]:
         o["filter.num_particles"] = args.particles
     if getattr(args, "seed", None) is not None:
         o["filter.seed"] = args.seed
-    return {"/**": o} if o else {}
+    out: dict[str, dict[str, Any]] = {"/**": o} if o else {}
+    if getattr(args, "delay", None):
+        if not args.delay >= 0:
+            raise RunError(f"--delay must be a number of seconds >= 0, got {args.delay}")
+        out["bag_replay"] = {"start_delay_s": float(args.delay)}
+    return out

@@ -124,13 +124,14 @@ def choose_profile(custom: dict[str, str], inputs: dict[str, str], planar: bool,
 def profile_for_bag(bag: str, forced: str | None = None) -> Profile:
     """choose_profile() for a bag on disk (the launch file's `profile:=auto`): reads its metadata,
     picks its inputs as `pf-slam run` does, looks up the lidar mount and the first scan."""
-    from .graph import inspect_stamps, lidar_mount, select_inputs
+    from .graph import inspect_stamps, lidar_mount, sample_bag, select_inputs
     from .io.bag import bag_info
     if forced not in (None, "", "auto"):
         return forced_profile(forced)
     info = bag_info(bag)
     inputs = select_inputs(bag, info)
-    stamps = inspect_stamps(bag, inputs, max_scans=1)
-    mount = lidar_mount(bag, info, inputs, scan_frame=stamps["scan_frame"])
+    sample = sample_bag(bag, info, inputs, max_scans=1)  # the bag read once
+    stamps = inspect_stamps(sample, inputs)
+    mount = lidar_mount(sample, info, inputs, scan_frame=stamps["scan_frame"])
     return choose_profile(info.get("custom_data", {}), inputs, mount.planar,
                           tuple(math.degrees(v) for v in mount.rpy), stamps.get("scan_range_max"))

@@ -29,15 +29,14 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..core.geometry import matrix_to_quat
-from .bag import TYPESTORE, BagWriter, camera_info, image, laser_scan, make_header, odometry
-from .bag import open_writer, tf_static
+from ..core.geometry import matrix_to_quat, rpy_to_quat
+from .bag import TYPESTORE, BagWriter, camera_info, image, laser_scan, make_header, odometry, open_writer, tf_static
 from .convert import TOPIC_ODOM, TOPIC_SCAN, TOPIC_TF_STATIC, ConvertReport
 
 __all__ = [
@@ -117,13 +116,6 @@ def head_rotation(neck_yaw: np.ndarray | float, head_pitch: np.ndarray | float) 
     return np.stack([np.stack([cy * cp, -sy + z, cy * sp], -1),
                      np.stack([sy * cp, cy + z, sy * sp], -1),
                      np.stack([-sp + z, z, cp + z], -1)], -2)
-
-
-def head_quaternion(neck_yaw: np.ndarray, head_pitch: np.ndarray) -> np.ndarray:
-    """``(M, 4)`` ``(qx, qy, qz, qw)`` of ``Rz(neck) * Ry(pitch)`` = q_z(neck) * q_y(pitch)."""
-    cy, sy = np.cos(0.5 * np.asarray(neck_yaw)), np.sin(0.5 * np.asarray(neck_yaw))
-    cp, sp = np.cos(0.5 * np.asarray(head_pitch)), np.sin(0.5 * np.asarray(head_pitch))
-    return np.stack([-sy * sp, cy * sp, sy * cp, cy * cp], axis=-1)
 
 
 def static_transforms() -> list[tuple[str, str, tuple, tuple]]:
@@ -478,7 +470,8 @@ def convert_thor(lidar_path: str | os.PathLike, joint_path: str | os.PathLike, o
         report.warnings.append(f'the lidar ({ls[lkeep].min() / 1e9:.3f}..{ls[lkeep].max() / 1e9:.3f} s) and '
                                f'joint ({js[jkeep].min() / 1e9:.3f}..{js[jkeep].max() / 1e9:.3f} s) times do '
                                'not overlap: are they from the same run?')
-    quat = head_quaternion(jnt.neck, jnt.head)
+    # base_link -> head = Rz(neck) * Ry(pitch): roll 0, pitch, yaw
+    quat = [rpy_to_quat((0.0, p, y)) for y, p in zip(jnt.neck.tolist(), jnt.head.tolist())]
     T = TYPESTORE.types
     scale_note = None
     if rgb is not None and rgb_scale != 1.0:
@@ -532,7 +525,7 @@ def convert_thor(lidar_path: str | os.PathLike, joint_path: str | os.PathLike, o
     return report
 
 
-def _write_joint(bag: BagWriter, T: Any, st: int, neck: float, head: float, q: np.ndarray) -> None:
+def _write_joint(bag: BagWriter, T: Any, st: int, neck: float, head: float, q: tuple) -> None:
     bag.write(TOPIC_JOINTS, st, T['sensor_msgs/msg/JointState'](
         header=make_header(st, ''), name=list(JOINT_NAMES), position=np.array([neck, head]),
         velocity=np.zeros(0), effort=np.zeros(0)))

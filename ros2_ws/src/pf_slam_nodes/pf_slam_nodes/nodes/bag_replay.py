@@ -79,6 +79,8 @@ class BagReplay(Node):
         self.max_in_flight = param(self, "max_in_flight", 100)
         self.scan_topic = param(self, "scan_topic", "/scan")
         self.clock_period_ns = int(param(self, "clock_period_s", 0.01) * 1e9)
+        self.start_delay_s = float(param(self, "start_delay_s", 0.0))
+        self.ready_at: float | None = None  # when graph_ready() first held (monotonic)
         self.restamp = parse_restamp(param(self, "restamp", ""))
         self.restamp_failed = 0
         self.ready_nodes: set[str] = set()
@@ -134,6 +136,10 @@ class BagReplay(Node):
             return
         if not self.started:
             if not self.graph_ready():
+                return
+            if self.ready_at is None:
+                self.ready_at = time.monotonic()
+            if time.monotonic() - self.ready_at < self.start_delay_s:
                 return
             self.started = True
             self.t0_wall = time.monotonic()

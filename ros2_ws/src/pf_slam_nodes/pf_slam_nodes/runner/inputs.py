@@ -6,9 +6,10 @@ from typing import Any
 
 import numpy as np
 
-from ..io.bag import BagError, BagReadError, check_run_inputs, deserialize, read_bag, stamp_ns_of
+from ..io.bag import BagError, bag_info, check_run_inputs, deserialize, stamp_ns_of
 from .common import DEFAULT_INPUTS, INPUT_TYPES, RunError
 from .mount import LidarMount, lidar_mount
+from .sample import BagSample, sample_bag
 
 
 ROLE_WORDS = {"scan": "lidar (LaserScan)", "odom": "odometry (Odometry)", "encoders": "wheel encoders (JointState)",
@@ -106,7 +107,7 @@ STAMP_OFFSET_NS = 500_000_000
 STAMP_JUMP_NS = 1_000_000_000
 
 
-def inspect_stamps(bag: str, inputs: dict[str, str], max_scans: int = 200) -> dict[str, Any]:
+def inspect_stamps(bag: str | BagSample, inputs: dict[str, str], max_scans: int = 200) -> dict[str, Any]:
     """The header stamps of the scans and the odometry against the bag's record times (the
     first `max_scans` scans and the odometry among them), and what the replay must do about them.
 
@@ -121,14 +122,16 @@ def inspect_stamps(bag: str, inputs: dict[str, str], max_scans: int = 200) -> di
 
     Returns {"restamp": {topic: "record" | shift_ns}, "notes": {topic: why, with numbers},
     "pairing": (scans with an odometry message of the same stamp, scans checked), "scan_frame",
-    "scan_range_max" (the first scan's)}, the pairing counted on the stamps as they will be replayed."""
+    "scan_range_max" (the first scan's)}, the pairing counted on the stamps as they will be replayed.
+    `bag`: a path, or the run's one-pass BagSample (runner/sample.py)."""
     scan_topic = inputs["scan"]
     odom_topic = inputs["odom" if "odom" in inputs else "encoders"]
+    sample = bag if isinstance(bag, BagSample) else sample_bag(bag, bag_info(bag), inputs, max_scans)
     rows: dict[str, list[tuple[int, int]]] = {scan_topic: [], odom_topic: []}
     scan_frame = None
     scan_range_max = None
-    try:
-        for t, msgtype, rec, raw in read_bag(bag, topics=[scan_topic, odom_topic]):
+    for t in rows:
+        for msgtype, rec, raw in sample.of(t):
             try:
                 msg = deserialize(raw, msgtype)
             except Exception:  # an unreadable message: the predictor counts it at run time
@@ -138,12 +141,9 @@ def inspect_stamps(bag: str, inputs: dict[str, str], max_scans: int = 200) -> di
                 scan_frame = msg.header.frame_id
                 if scan_range_max is None:
                     scan_range_max = float(msg.range_max)
-                if len(rows[t]) >= max_scans:
-                    break
-    except BagReadError:
-        if not rows[scan_topic]:
-            raise  # damaged before the first scan: nothing to run
-        # damaged later: decide from the scans before it; the replay stops at the damage and says so
+    if sample.error is not None and not rows[scan_topic]:
+        raise sample.error  # damaged before the first scan: nothing to run
+    # damaged later: decide from the scans before it; the replay stops at the damage and says so
     arr = {t: np.array(r, dtype=np.int64).reshape(-1, 2) for t, r in rows.items()}
     restamp: dict[str, Any] = {}
     notes: dict[str, str] = {}

@@ -1,7 +1,6 @@
 """The lidar's mount from the bag's /tf_static (bag inspection, part 2)."""
 from __future__ import annotations
 
-import contextlib
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -9,8 +8,9 @@ from typing import Any
 import numpy as np
 
 from ..core.geometry import quat_to_matrix
-from ..io.bag import BagReadError, deserialize, read_bag
+from ..io.bag import deserialize
 from .params import node_params
+from .sample import BagSample, sample_bag
 
 
 #: the parameters that describe the lidar's mount (planar: filter.sensor_offset_*; 3D: laser.extrinsic)
@@ -77,41 +77,37 @@ class LidarMount:
                 f"{angles} ({how})")
 
 
-def _tf_static_tree(bag: str, topics: dict) -> tuple[dict[str, tuple[str, np.ndarray, np.ndarray]], list[str]]:
+def _tf_static_tree(sample: BagSample, topics: dict) -> tuple[dict[str, tuple[str, np.ndarray, np.ndarray]], list[str]]:
     """Every /tf_static transform of the bag: child -> (parent, R, t) (a later message's
     transform of the same child replaces the earlier one, as tf2 does), and warnings."""
     tree: dict[str, tuple[str, np.ndarray, np.ndarray]] = {}
     warnings: list[str] = []
     if "/tf_static" not in topics:
         return tree, warnings
-    with contextlib.suppress(BagReadError):  # damaged mid-bag: the transforms before it count
-        for _, msgtype, _, raw in read_bag(bag, topics=["/tf_static"]):
-            for tr in deserialize(raw, msgtype).transforms:
-                tt = tr.transform.translation
-                t = np.array([tt.x, tt.y, tt.z], dtype=np.float64)
-                try:
-                    q = tr.transform.rotation
-                    rot = quat_to_matrix(q.x, q.y, q.z, q.w)
-                    if not np.isfinite(t).all():
-                        raise ValueError(f"translation {t.tolist()} is not finite")
-                except ValueError as e:
-                    warnings.append(f"/tf_static: {tr.header.frame_id} -> {tr.child_frame_id} ignored: {e}")
-                    continue
-                tree[tr.child_frame_id.lstrip("/")] = (tr.header.frame_id.lstrip("/"), rot, t)  # tf2 drops a leading /
+    for msgtype, _, raw in sample.of("/tf_static"):  # damaged mid-bag: the transforms before it count
+        for tr in deserialize(raw, msgtype).transforms:
+            tt = tr.transform.translation
+            t = np.array([tt.x, tt.y, tt.z], dtype=np.float64)
+            try:
+                q = tr.transform.rotation
+                rot = quat_to_matrix(q.x, q.y, q.z, q.w)
+                if not np.isfinite(t).all():
+                    raise ValueError(f"translation {t.tolist()} is not finite")
+            except ValueError as e:
+                warnings.append(f"/tf_static: {tr.header.frame_id} -> {tr.child_frame_id} ignored: {e}")
+                continue
+            tree[tr.child_frame_id.lstrip("/")] = (tr.header.frame_id.lstrip("/"), rot, t)  # tf2 drops a leading /
     return tree, warnings
 
 
-def _odom_child(bag: str, topics: dict, odom_frame: str) -> str | None:
-    """The robot's base frame by its /tf: the child of `odom_frame` (first 200 messages)."""
+def _odom_child(sample: BagSample, topics: dict, odom_frame: str) -> str | None:
+    """The robot's base frame by its /tf: the child of `odom_frame` (the sample's first /tf messages)."""
     if "/tf" not in topics:
         return None
-    with contextlib.suppress(BagReadError):  # damaged mid-bag: what precedes it
-        for k, (_, msgtype, _, raw) in enumerate(read_bag(bag, topics=["/tf"])):
-            for tr in deserialize(raw, msgtype).transforms:
-                if tr.header.frame_id.lstrip("/") == odom_frame and tr.child_frame_id:
-                    return tr.child_frame_id.lstrip("/")
-            if k >= 200:
-                break
+    for msgtype, _, raw in sample.of("/tf"):  # damaged mid-bag: what precedes it
+        for tr in deserialize(raw, msgtype).transforms:
+            if tr.header.frame_id.lstrip("/") == odom_frame and tr.child_frame_id:
+                return tr.child_frame_id.lstrip("/")
     return None
 
 
@@ -146,25 +142,29 @@ def _compose_up(tree: dict, chain: list[str]) -> tuple[np.ndarray, np.ndarray]:
     return rot, t
 
 
-def lidar_mount(bag: str, info: dict, inputs: dict[str, str], scan_frame: str | None = None,
+def lidar_mount(bag: str | BagSample, info: dict, inputs: dict[str, str], scan_frame: str | None = None,
                 base_frame: str | None = None, odom_frame: str = "odom") -> LidarMount:
     """The lidar's mount from the bag's /tf_static: the scan's frame composed up the chain of
     static transforms to the robot's base frame (`base_frame` if given, else the child of
     `odom_frame` in the bag's /tf, else base_link), e.g. base_link -> shell_link -> rplidar_link.
     A bag without /tf_static, or whose /tf_static lacks the scan's frame (warned, naming what it
-    has), gives source "parameters": the graph's filter.sensor_offset_* / laser.extrinsic."""
+    has), gives source "parameters": the graph's filter.sensor_offset_* / laser.extrinsic.
+    `bag`: a path, or the run's one-pass BagSample (runner/sample.py)."""
     topics = info["topics"]
+    sample = bag if isinstance(bag, BagSample) else sample_bag(bag, info, inputs, max_scans=1)
     if scan_frame is None:
-        for _, msgtype, _, raw in read_bag(bag, topics=[inputs["scan"]]):
+        first = sample.of(inputs["scan"])[:1]
+        if not first and sample.error is not None:
+            raise sample.error
+        for msgtype, _, raw in first:
             scan_frame = deserialize(raw, msgtype).header.frame_id
-            break
     scan_frame = (scan_frame or "").lstrip("/")
     from_tf = None
     if base_frame is None:
-        from_tf = _odom_child(bag, topics, odom_frame)
+        from_tf = _odom_child(sample, topics, odom_frame)
     base = base_frame or from_tf or "base_link"
     m = LidarMount("parameters", base, scan_frame, base_from_tf=from_tf is not None)
-    tree, m.warnings = _tf_static_tree(bag, topics)
+    tree, m.warnings = _tf_static_tree(sample, topics)
     if "/tf_static" not in topics:
         return m
     if not scan_frame:

@@ -35,7 +35,7 @@
 
 The world frame is the robot's true starting pose (as in ``sim.indoor``): the odometry starts at
 the identity there, so |odometry - ground truth| is the dead-reckoning drift. Times are UNIX
-seconds from ``EPOCH_S``. The output is identical for a given seed and options.
+seconds from ``EPOCH_S``. A seed and options give the same data (the .mat headers carry the write time).
 """
 
 from __future__ import annotations
@@ -50,11 +50,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .indoor import IndoorWorld, rasterise_world, ray_cast
-
 from pf_slam_nodes.io import thor as th
 from pf_slam_nodes.io.mapfile import write_map
 from pf_slam_nodes.io.trajectory import write_tum
+
+from .indoor import IndoorWorld, rasterise_world, ray_cast
 
 __all__ = ['EPOCH_S', 'OfficeLayout', 'ThorSimResult', 'office_layout', 'plan_walk', 'simulate_thor',
            'lidar_ranges', 'render_kinect', 'head_angles_at']
