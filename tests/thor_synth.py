@@ -154,7 +154,8 @@ def write_thor_bag(out: Path, duration_s: float = 30.0, seed: int = 0, scan_hz: 
         for k in range(int(duration_s * rgbd_hz)):
             t = 0.5 + k / rgbd_hz
             depth, rgb = render_rgbd(t, look_down, k_rgb, rgb_size)
-            events.append((t + 0.004, "/kinect/rgb/image_raw", B.image(ns(t + 0.004), "kinect_rgb_optical", rgb, "rgb8")))
+            rgb_msg = B.image(ns(t + 0.004), "kinect_rgb_optical", rgb, "rgb8")
+            events.append((t + 0.004, "/kinect/rgb/image_raw", rgb_msg))
             m = B._T['sensor_msgs/msg/Image'](
                 header=B.make_header(ns(t), "kinect_depth_optical"), height=424, width=512, encoding="16UC1",
                 is_bigendian=0, step=1024, data=np.frombuffer(depth.astype("<u2").tobytes(), dtype=np.uint8))
@@ -166,7 +167,8 @@ def write_thor_bag(out: Path, duration_s: float = 30.0, seed: int = 0, scan_hz: 
                            ("/joint_states", "sensor_msgs/msg/JointState"), ("/scan", "sensor_msgs/msg/LaserScan"),
                            ("/odom", "nav_msgs/msg/Odometry")]:
             w.add_connection(topic, typ)
-        static = [("head", "lidar", (0, 0, LIDAR_UP), (0, 0, 0, 1)), ("head", "kinect", (0, 0, KINECT_UP), (0, 0, 0, 1)),
+        static = [("head", "lidar", (0, 0, LIDAR_UP), (0, 0, 0, 1)),
+                  ("head", "kinect", (0, 0, KINECT_UP), (0, 0, 0, 1)),
                   ("kinect", "kinect_rgb_optical", (0, 0, 0), matrix_to_quat(OPTICAL)),
                   ("kinect_rgb_optical", "kinect_depth_optical", tuple(T_RGB_DEPTH), (0, 0, 0, 1))]
         w.write("/tf_static", ns(0), B.tf_static(ns(0), static))

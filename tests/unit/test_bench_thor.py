@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import cv2
-import pytest
 import numpy as np
+import pytest
 
 from pf_slam_nodes.io.mapfile import write_map
 from pf_slam_nodes.io.texture_files import write_texture_pngs

@@ -10,8 +10,7 @@ import pytest
 from pf_slam_nodes.core import scheduler as sch
 from pf_slam_nodes.core.config import FilterConfig, LaserConfig, OdometryMotionConfig
 from pf_slam_nodes.core.geometry import matrix_to_quat
-from pf_slam_nodes.core.mount import (MountBuffer, base_points, compose_extrinsic, kept_fraction,
-                                      mounted_scan)
+from pf_slam_nodes.core.mount import MountBuffer, base_points, compose_extrinsic, kept_fraction, mounted_scan
 
 HEAD_Z = 0.93 + 0.33
 LIDAR_ON_HEAD = (1, 0, 0, 0, 1, 0, 0, 0, 1, 0.0, 0.0, 0.15)

@@ -56,7 +56,10 @@ def render_rgbd(base_from_rgb, pose, floor_z=0.0, rgb_size=(960, 540)):
     return depth, np.clip(np.rint(col), 0, 255).astype(np.uint8)
 
 
-def kinect_mount(neck=0.0, pitch=math.radians(25)):
+PITCH = math.radians(25)
+
+
+def kinect_mount(neck=0.0, pitch=PITCH):
     """kinect_rgb_optical in base_link: head at 1.26 m, Rz(neck) Ry(pitch), kinect 0.07 above."""
     r_bh = rz(neck) @ ry(pitch)
     return r_bh @ OPTICAL, np.array([0, 0, 1.26]) + r_bh @ [0, 0, 0.07]
@@ -70,7 +73,7 @@ def test_depth_texture_of_a_coloured_floor():
     cfg = TextureConfig(cell_m=0.05)
     tex = DepthTexturer(camera(), cfg)
     texmap = TextureMap.from_config(cfg)
-    for k, (pose, neck) in enumerate([((0.0, 0.0, 0.0), 0.0), ((0.5, 0.2, 0.3), 0.4), ((1.0, -0.3, -0.5), -0.3)]):
+    for pose, neck in [((0.0, 0.0, 0.0), 0.0), ((0.5, 0.2, 0.3), 0.4), ((1.0, -0.3, -0.5), -0.3)]:
         mount = kinect_mount(neck)
         depth, rgb = render_rgbd(mount, pose)
         res = tex.process(depth, rgb, mount, np.array(pose))

@@ -14,7 +14,6 @@ odometry, neither corrected nor mapped with, and counted (``faults.scan_mostly_f
 from __future__ import annotations
 
 import math
-from typing import Optional
 
 import numpy as np
 
@@ -60,7 +59,7 @@ class MountBuffer:
         return len(self.stamps)
 
     @property
-    def latest_ns(self) -> Optional[int]:
+    def latest_ns(self) -> int | None:
         return self.stamps[-1] if self.stamps else None
 
     def add(self, stamp: int, quat_xyzw, translation) -> None:
@@ -83,7 +82,7 @@ class MountBuffer:
     def covers(self, stamp: int) -> bool:
         return bool(self.stamps) and self.stamps[-1] >= stamp
 
-    def at(self, stamp: int) -> Optional[tuple[np.ndarray, np.ndarray]]:
+    def at(self, stamp: int) -> tuple[np.ndarray, np.ndarray] | None:
         """(R (3, 3), t (3,)) of the mount at ``stamp``; None before the first sample."""
         if not self.stamps:
             return None

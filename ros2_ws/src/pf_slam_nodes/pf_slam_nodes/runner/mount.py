@@ -111,17 +111,14 @@ def _odom_child(sample: BagSample, topics: dict, odom_frame: str) -> str | None:
     return None
 
 
-def _dynamic_parent(bag: str, topics: dict, frame: str) -> str | None:
-    """The parent of `frame` in the bag's /tf (first 200 messages): a moving mount."""
+def _dynamic_parent(sample: BagSample, topics: dict, frame: str) -> str | None:
+    """The parent of `frame` in the bag's /tf (the sample's first /tf messages): a moving mount."""
     if "/tf" not in topics:
         return None
-    with contextlib.suppress(BagReadError):
-        for k, (_, msgtype, _, raw) in enumerate(read_bag(bag, topics=["/tf"])):
-            for tr in deserialize(raw, msgtype).transforms:
-                if tr.child_frame_id.lstrip("/") == frame:
-                    return tr.header.frame_id.lstrip("/")
-            if k >= 200:
-                break
+    for msgtype, _, raw in sample.of("/tf"):
+        for tr in deserialize(raw, msgtype).transforms:
+            if tr.child_frame_id.lstrip("/") == frame:
+                return tr.header.frame_id.lstrip("/")
     return None
 
 
@@ -195,7 +192,7 @@ def lidar_mount(bag: str | BagSample, info: dict, inputs: dict[str, str], scan_f
         r_b, t_b = _compose_up(tree, up_b)
         rot, t = r_b.T @ r_s, r_b.T @ (t_s - t_b)
         up = list(reversed(up_b + list(reversed(up_s))[1:]))  # shown as base -> .. -> ancestor -> .. -> scan
-    elif _dynamic_parent(bag, topics, up[-1]) == base:
+    elif _dynamic_parent(sample, topics, up[-1]) == base:
         # a moving mount (a lidar on a head): base -> up[-1] on /tf, the static rest from here
         rot, t = _compose_up(tree, up)
         m.dynamic_frame = up[-1]

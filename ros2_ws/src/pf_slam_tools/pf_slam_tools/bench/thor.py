@@ -17,6 +17,7 @@ import numpy as np
 
 from pf_slam_nodes.core import metrics
 from pf_slam_nodes.io.trajectory import read_trajectory
+
 from . import stage_table
 
 #: the targets of the THOR issue
@@ -142,7 +143,8 @@ def targets_line(rows: list[dict]) -> str:
     return (f"{len(rows)} runs ({len({r['seed'] for r in rows})} worlds x {len({r['filter_seed'] for r in rows})} "
             f"filter seeds): ATE mean {ate.mean():.3f} m, worst {ate.max():.3f} m, <= {ATE_MAX_M} m in "
             f"{int((ate <= ATE_MAX_M).sum())} of {len(rows)}; texture error mean {np.nanmean(tex):.1f}, worst "
-            f"{np.nanmax(tex):.1f}, <= {TEXTURE_ERROR_MAX:g} in {int((tex <= TEXTURE_ERROR_MAX).sum())} of {len(rows)}; "
+            f"{np.nanmax(tex):.1f}, <= {TEXTURE_ERROR_MAX:g} in {int((tex <= TEXTURE_ERROR_MAX).sum())} of "
+            f"{len(rows)}; "
             f"map F1 {min(r['map_f1'] for r in rows):.3f}-{max(r['map_f1'] for r in rows):.3f}; RTF "
             f"{rtf.min():.1f}-{rtf.max():.1f}x, >= {RTF_MIN:g}x in {int((rtf >= RTF_MIN).sum())} of {len(rows)}")
 

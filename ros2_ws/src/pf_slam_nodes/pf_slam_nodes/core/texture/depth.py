@@ -25,7 +25,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from typing import Optional
 
 import numpy as np
 
@@ -91,7 +90,7 @@ class DepthTexturer:
         The kinematic floor's height in the base frame (0: base_link on the ground).
     """
 
-    def __init__(self, camera: DepthCamera, cfg: Optional[TextureConfig] = None,
+    def __init__(self, camera: DepthCamera, cfg: TextureConfig | None = None,
                  floor_height_m: float = 0.0) -> None:
         self.camera = camera
         self.cfg = cfg or TextureConfig()
@@ -127,8 +126,8 @@ class DepthTexturer:
         return plane, True
 
     def process(self, depth_mm: np.ndarray, rgb: np.ndarray, base_from_rgb: tuple[np.ndarray, np.ndarray],
-                pose: Optional[np.ndarray] = None,
-                rgb_from_depth: Optional[tuple[np.ndarray, np.ndarray]] = None) -> DepthFrameResult:
+                pose: np.ndarray | None = None,
+                rgb_from_depth: tuple[np.ndarray, np.ndarray] | None = None) -> DepthFrameResult:
         """One pair -> floor samples.
 
         Parameters
