@@ -140,3 +140,19 @@ def test_scan_waits_for_the_mount_sample_at_its_stamp():
     assert len(send) == 1
     rot = np.asarray(send[0].mount[:9]).reshape(3, 3)
     assert math.atan2(rot[1, 0], rot[0, 0]) == pytest.approx(0.25, abs=1e-9)  # interpolated at 1 s
+
+
+def test_tf_cdr_reader_reads_what_the_bag_writer_wrote():
+    """The predictor reads /tf from the bytes (100 Hz): the same values as the message."""
+    from pf_slam_nodes.io.bag import TYPESTORE, tf_static
+    from pf_slam_nodes.ros.cdr import tf_transforms
+    q = matrix_to_quat(rz(0.3) @ ry(0.2))
+    msg = tf_static(1_700_000_000_123_456_789, [("base_link", "head", (0.1, -0.2, HEAD_Z), q),
+                                                ("/odom", "base_link", (1.0, 2.0, 0.0), (0, 0, 0, 1))])
+    raw = bytes(TYPESTORE.serialize_cdr(msg, "tf2_msgs/msg/TFMessage"))
+    out = tf_transforms(raw)
+    assert [(s, p, c) for s, p, c, _, _ in out] == [(1_700_000_000_123_456_789, "base_link", "head"),
+                                                    (1_700_000_000_123_456_789, "/odom", "base_link")]
+    assert out[0][3] == (0.1, -0.2, HEAD_Z) and np.allclose(out[0][4], q)
+    with pytest.raises(ValueError, match="truncated"):
+        tf_transforms(raw[:-8])

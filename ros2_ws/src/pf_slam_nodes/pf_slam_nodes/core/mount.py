@@ -13,6 +13,7 @@ odometry, neither corrected nor mapped with, and counted (``faults.scan_mostly_f
 """
 from __future__ import annotations
 
+import bisect
 import math
 
 import numpy as np
@@ -50,8 +51,8 @@ class MountBuffer:
 
     def __init__(self, keep: int = 4096) -> None:
         self.stamps: list[int] = []
-        self.quats: list[np.ndarray] = []
-        self.trans: list[np.ndarray] = []
+        self.quats: list[tuple[float, float, float, float]] = []
+        self.trans: list[tuple[float, float, float]] = []
         self.keep = int(keep)
         self.out_of_order = 0
 
@@ -63,18 +64,17 @@ class MountBuffer:
         return self.stamps[-1] if self.stamps else None
 
     def add(self, stamp: int, quat_xyzw, translation) -> None:
-        """A sample at ``stamp`` (ns); one older than the newest is dropped and counted."""
-        q = np.asarray(quat_xyzw, dtype=np.float64).reshape(4)
-        t = np.asarray(translation, dtype=np.float64).reshape(3)
-        n = float(np.linalg.norm(q))
-        if not (np.isfinite(q).all() and np.isfinite(t).all()) or n < 1e-9:
-            self.out_of_order += 1
-            return
-        if self.stamps and stamp < self.stamps[-1]:
+        """A sample at ``stamp`` (ns); one older than the newest, or not finite, is dropped and
+        counted. Plain floats: 100 samples a second arrive one by one."""
+        x, y, z, w = (float(v) for v in quat_xyzw)
+        t = tuple(float(v) for v in translation)
+        n = math.sqrt(x * x + y * y + z * z + w * w)
+        if not (math.isfinite(n) and n > 1e-9 and len(t) == 3 and all(math.isfinite(v) for v in t)) \
+                or (self.stamps and stamp < self.stamps[-1]):
             self.out_of_order += 1
             return
         self.stamps.append(int(stamp))
-        self.quats.append(q / n)
+        self.quats.append((x / n, y / n, z / n, w / n))
         self.trans.append(t)
         if len(self.stamps) > 2 * self.keep:
             del self.stamps[:self.keep], self.quats[:self.keep], self.trans[:self.keep]
@@ -86,16 +86,17 @@ class MountBuffer:
         """(R (3, 3), t (3,)) of the mount at ``stamp``; None before the first sample."""
         if not self.stamps:
             return None
-        i = int(np.searchsorted(np.asarray(self.stamps), stamp, side="left"))
+        i = bisect.bisect_left(self.stamps, stamp)
         if i == 0:
-            q, t = self.quats[0], self.trans[0]
+            q, t = self.quats[0], np.array(self.trans[0])
         elif i >= len(self.stamps):
-            q, t = self.quats[-1], self.trans[-1]
+            q, t = self.quats[-1], np.array(self.trans[-1])
         else:
             t0, t1 = self.stamps[i - 1], self.stamps[i]
             u = 0.0 if t1 == t0 else (stamp - t0) / (t1 - t0)
-            q = slerp(self.quats[i - 1], self.quats[i], u)
-            t = self.trans[i - 1] + u * (self.trans[i] - self.trans[i - 1])
+            q = slerp(np.array(self.quats[i - 1]), np.array(self.quats[i]), u)
+            a, b = np.array(self.trans[i - 1]), np.array(self.trans[i])
+            t = a + u * (b - a)
         return quat_to_matrix(*(float(v) for v in q)), np.asarray(t, dtype=np.float64)
 
 

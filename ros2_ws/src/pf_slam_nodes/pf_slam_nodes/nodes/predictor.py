@@ -113,7 +113,7 @@ class Predictor(Node):
             # it) is not the bag's: not counted against the replay's /tf count
             self._own_tf = {(frame("map_frame"), frame("odom_frame"))} | (
                 {(frame("odom_frame"), frame("base_frame"))} if self.pub_tf is not None else set())
-            self.create_subscription(TFMessage, topics.TF, self._on_tf, qos.pipeline(10000))
+            self.create_subscription(TFMessage, topics.TF, self._on_tf, qos.pipeline(10000), raw=True)
         # every decision is the scheduler's; its actions are published as they are decided
         self.sched = sch.PredictorScheduler(filter_cfg, motion_cfg, source, odom_sync, wheels_cfg,
                                             gyro=fog != "none", odom_wait_scans=odom_wait_scans,
@@ -194,16 +194,20 @@ class Predictor(Node):
             self.get_logger().error(f"{topic}: message dropped: {exc}", throttle_duration_sec=5.0)
             return None, None
 
-    def _on_tf(self, msg: TFMessage) -> None:
+    def _on_tf(self, raw: bytes) -> None:
         """/tf: the moving mount's samples. Messages of the graph itself (odom -> base, map ->
         odom) are not counted; every other one is (the replay's count of the bag's /tf)."""
         sample, own = None, True
-        for tr in msg.transforms:
-            key = (tr.header.frame_id.lstrip("/"), tr.child_frame_id.lstrip("/"))
+        try:
+            transforms = cdr.tf_transforms(raw)
+        except ValueError as exc:  # counted (the replay counts it), no sample
+            self.get_logger().error(f"/tf: message dropped: {exc}", throttle_duration_sec=5.0)
+            transforms, own = [], False
+        for stamp, parent, child, t, q in transforms:
+            key = (parent.lstrip("/"), child.lstrip("/"))
             own = own and key in self._own_tf
             if key == self.mount_frames:
-                q, t = tr.transform.rotation, tr.transform.translation
-                sample = (convert.stamp_to_ns(tr.header.stamp), (q.x, q.y, q.z, q.w), (t.x, t.y, t.z))
+                sample = (stamp, q, t)
         if own and sample is None:
             return
         if sample is None:
