@@ -112,3 +112,13 @@ def test_stream_loop_equals_graph(thor):
     assert np.array_equal(poses[:, :2], gp[:, :2])
     assert np.abs(wrap_angle(poses[:, 2] - gp[:, 2])).max() <= 1e-12
     assert slam.scheduler.faults()["scan_mostly_floor"] == res.summary["faults"]["scan_mostly_floor"]
+
+
+def test_one_process_per_node_gives_the_same_trajectory(thor, tmp_path, module_ros_domain):
+    """The moving mount's samples are waited for on data, never on time: the same poses with
+    every node in its own process (the /tf stream then arrives beside the scans, not with them)."""
+    synth, out, res, _ = thor
+    multi = graph.run(str(synth.bag), tmp_path / "multi", processes="multi", progress=False,
+                      domain_id=module_ros_domain, texture=False, record=False, snapshot_every=0)
+    assert multi.summary["faults"]["scan_mostly_floor"] == res.summary["faults"]["scan_mostly_floor"]
+    assert (tmp_path / "multi" / "trajectory.tum").read_bytes() == (out / "trajectory.tum").read_bytes()
