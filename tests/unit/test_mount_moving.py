@@ -156,3 +156,21 @@ def test_tf_cdr_reader_reads_what_the_bag_writer_wrote():
     assert out[0][3] == (0.1, -0.2, HEAD_Z) and np.allclose(out[0][4], q)
     with pytest.raises(ValueError, match="truncated"):
         tf_transforms(raw[:-8])
+
+
+def test_live_scan_waits_at_most_odom_wait_scans_for_its_head_sample():
+    """Live (no replay to say the /tf stream ended): a scan whose head sample does not come is
+    decided with the newest sample once odom_wait_scans scans wait behind it."""
+    laser = LaserConfig(extrinsic=LIDAR_ON_HEAD, dynamic_frame="head")
+    s = sch.PredictorScheduler(FilterConfig(num_particles=5, min_travel_m=0.1), OdometryMotionConfig(),
+                               "odom", "exact", odom_wait_scans=3, stamp_offset_s=0.0, laser_cfg=laser)
+    angles = np.radians(np.linspace(-135, 135, 1081))
+    out = s.add_mount(0, *head(0.3, 0.0))
+    for k in range(4):
+        t = int((k + 1) * 1e9)
+        out += s.add_scan(t, True, f"s{k}", geometry=(np.full(1081, 3.0), angles, 0.1, 30.0))
+        out += s.add_odometry(t, np.array([0.3 * k, 0.0, 0.0]))
+    sends = [a for a in out if isinstance(a, sch.SendCorrection)]
+    assert [a.payload for a in sends] == ["s0"]  # decided once 3 scans waited behind it
+    rot = np.asarray(sends[0].mount[:9]).reshape(3, 3)
+    assert math.atan2(rot[1, 0], rot[0, 0]) == pytest.approx(0.3)  # the newest sample, held
