@@ -8,7 +8,7 @@ PARAMS ?= ros2_ws/src/pf_slam_nodes/config/sim_indoor.yaml
 OUT ?= runs/sample
 PYTEST_ARGS ?=
 
-.PHONY: setup run test bench bench-car bench-scaling lock clean
+.PHONY: setup run test bench bench-car bench-scaling bench-thor lock clean
 
 setup:
 	@bash scripts/setup.sh
@@ -27,6 +27,9 @@ bench: setup   ## prints tables (also written to runs/bench/carmen*.md and docs/
 
 bench-scaling: setup   ## particles 10-1000 (intel_2726) and grids 500²-4000² (intel_910): wall, RTF, peak RSS, stage split; plots in docs/img (~25 min)
 	$(BIN)/pf-slam bench scaling --data ../shared/data --out runs/bench --plot-dir docs/img --results docs/results.md
+
+bench-thor: setup   ## three simulated 60 s THOR walks (moving head, RGB-D) x filter seeds 0 and 1: ATE, map F1, texture colour error, RTF
+	$(BIN)/pf-slam bench thor --seeds 0 1 2 --filter-seeds 0 1 --out runs/bench --results docs/results.md
 
 bench-car: setup   ## five simulated 300 s car drives x filter seeds 0 and 1 (simulated once; ~6 min here): ATE, DR, map F1, RTF vs ceiling
 	$(BIN)/pf-slam bench car --seeds 0 1 2 3 4 --filter-seeds 0 1 --out runs/bench --results docs/results.md

@@ -131,9 +131,9 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks: ParticleArray layout; the graph on the CARMEN logs "
                        "and on simulated car drives; the replay-only ceiling of a bag; scaling with "
                        "particles and grid size")
-    b.add_argument("what", choices=["messages", "carmen", "car", "ceiling", "scaling"])
+    b.add_argument("what", choices=["messages", "carmen", "car", "ceiling", "scaling", "thor"])
     b.add_argument("--bag", help="ceiling: the bag to replay")
-    b.add_argument("--duration", type=float, default=300.0, help="car: simulated drive length (s)")
+    b.add_argument("--duration", type=float, help="car, thor: simulated drive / walk length (s; default 300 / 60)")
     b.add_argument("--particles", type=int, help="car: filter.num_particles (default: kaist.yaml)")
     b.add_argument("--data", help="carmen, scaling: the datasets folder (carmen/ inside); required for them")
     b.add_argument("--out", default="runs/bench", help="where bags, runs and tables go")
@@ -245,9 +245,13 @@ def _bench(args) -> tuple[str | None, str, str]:
                  + "| per-sample Vector3Stamped | FogBatch of 10 |\n|---:|---:|\n"
                  + f"| {fog['vector3']:.3f} | {fog['batch']:.3f} |")
         return "messages", "Messages: ParticleArray layout, FOG stream", table
+    if args.what == "thor":
+        from pf_slam_tools.bench import thor
+        table = thor.main(args.out, tuple(args.seeds), args.duration or 60.0, tuple(args.filter_seeds), args.particles)
+        return "thor", "THOR humanoid: simulated walks (moving head, RGB-D texture)", table
     if args.what == "car":
         from pf_slam_tools.bench import car
-        table = car.main(args.out, tuple(args.seeds), args.duration, args.processes, args.particles,
+        table = car.main(args.out, tuple(args.seeds), args.duration or 300.0, args.processes, args.particles,
                          tuple(args.filter_seeds))
         return f"car_{args.processes}", f"The car: simulated drives ({args.processes} process)", table
     if args.what == "ceiling":

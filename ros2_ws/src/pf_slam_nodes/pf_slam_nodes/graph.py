@@ -84,8 +84,8 @@ def _plan(bag: str, params_file: str | None, rate: str, processes: str, override
     info = bag_info(bag)
     file_layer = load_params(params_file) if params_file else {}
     inputs = select_inputs(bag, info, {**params_topics(file_layer), **(input_topics or {})})
-    texture = (texture and "stereo_right" in inputs
-               and info["topics"].get(inputs.get("stereo_left", ""), (None, 0))[1] > 0)  # images, not just the topic
+    texture = texture and any(a in inputs and b in inputs and info["topics"][inputs[a]][1] > 0  # images, not just the topic
+                              for a, b in (("stereo_left", "stereo_right"), ("rgbd_rgb", "rgbd_depth")))
     node_names = NODE_NAMES + (("texture",) if texture else ())
     user = [file_layer] + ([overrides] if overrides else [])
     mount, stamps = _inspect_bag(bag, info, inputs, user)
@@ -225,7 +225,7 @@ def run_cli(args: Any, log: Callable[[str], None] = print) -> int:
             + ", ".join(f"{k} {n}" for k, n in s["faults"].items() if n) + "; see the node logs")
     if "texture" in s:
         t = s["texture"]
-        log(f"texture: {t.get('frames_processed')} of {t.get('frames_received')} stereo pairs used "
+        log(f"texture: {t.get('frames_processed')} of {t.get('frames_received')} {t.get('mode', 'stereo')} pairs used "
             f"({t.get('frames_skipped')} skipped under load, {t.get('frames_dropped')} without a pose), "
             f"{t['cells_coloured']} cells coloured; {', '.join(t['files']) or 'no image'}")
     if not s["complete"]:

@@ -28,11 +28,11 @@ CONFIG_DIR = Path(__file__).resolve().parents[1] / "config"
 
 #: profile name -> its file in config/
 PROFILES = {"indoor": "carmen_indoor.yaml", "kaist": "kaist.yaml", "mines": "mines.yaml",
-            "sim_indoor": "sim_indoor.yaml"}
+            "sim_indoor": "sim_indoor.yaml", "thor": "thor.yaml"}
 #: other names accepted by --profile (the files' own names)
 ALIASES = {"carmen": "indoor", "carmen_indoor": "indoor", "car": "kaist"}
 #: the converters' pf_slam.format -> profile
-FORMAT_PROFILES = {"carmen": "indoor", "kaist": "kaist", "mines": "mines"}
+FORMAT_PROFILES = {"carmen": "indoor", "kaist": "kaist", "mines": "mines", "thor": "thor"}
 #: a planar lidar with wheel encoders and at most this range is a small robot's (URG-04LX: 5.6 m)
 SHORT_RANGE_M = 6.0
 

@@ -485,7 +485,17 @@ class LaserConfig(_ConfigBase):
     min_range_m, max_range_m : float
         Range gate (m).
     min_height_m, max_height_m : float
-        Height gate in the vehicle frame (m).
+        Height gate in the vehicle frame (m). With the vehicle frame on the ground (base_link),
+        ``min_height_m`` is the floor margin: returns lower than it are the floor, dropped.
+    dynamic_frame : str
+        A moving mount (a lidar on a robot's head): the frame between the base and the laser
+        whose ``base_frame -> dynamic_frame`` transform comes on /tf at its own stamps; then
+        ``extrinsic`` is the static ``dynamic_frame -> laser`` part, and each scan is projected
+        with the mount interpolated at its stamp (core/mount.py). Empty: a static mount.
+    min_kept_fraction : float
+        With a moving mount: a scan of which less than this fraction of the returns survives
+        the height gate is *mostly floor*: posed from odometry, neither corrected nor mapped
+        with, counted in ``faults.scan_mostly_floor``. 0: off.
     """
 
     extrinsic: tuple = (0.0,) * 12
@@ -493,6 +503,8 @@ class LaserConfig(_ConfigBase):
     max_range_m: float = 1000.0
     min_height_m: float = -1000.0
     max_height_m: float = 1000.0
+    dynamic_frame: str = ""
+    min_kept_fraction: float = 0.0
 
     def __post_init__(self) -> None:
         ext = tuple(self.extrinsic)
@@ -513,6 +525,11 @@ class LaserConfig(_ConfigBase):
             raise ValueError(f"max_range_m must be > min_range_m, got {self.max_range_m!r}")
         if self.max_height_m <= self.min_height_m:
             raise ValueError(f"max_height_m must be > min_height_m, got {self.max_height_m!r}")
+        if not isinstance(self.dynamic_frame, str):
+            raise ValueError(f"dynamic_frame must be a frame name (string), got {self.dynamic_frame!r}")
+        _check_finite("min_kept_fraction", self.min_kept_fraction)
+        if not 0.0 <= self.min_kept_fraction <= 1.0:
+            raise ValueError(f"min_kept_fraction must be in [0, 1], got {self.min_kept_fraction!r}")
 
     @property
     def is_3d(self) -> bool:

@@ -40,6 +40,11 @@ What it schedules:
   ``odom_wait_scans`` scans wait behind it (``odom_not_arrived``); exact pairing without partners
   falls back to interpolation; odometry stamps seconds away from the scans' for 3 scans in a row
   are counted (``odom_stamp_offset``).
+* **A moving mount** (``laser.dynamic_frame``, a lidar on a humanoid's head; core/mount.py): a
+  scan that may be corrected waits until the mount's samples (:meth:`add_mount`) reach its
+  stamp (or no more will come: end of input, a stall), is projected with the mount interpolated
+  there (:class:`SendCorrection` ``mount``), and is posed from odometry when it is mostly floor
+  (``scan_mostly_floor``: counted once per scan that would have been corrected).
 * **End of stream.** The last scan of the input is always sent on (:class:`SendEnd` when it is a
   pass-through) so the correlator and the mapper see the end of the run.
 """
@@ -52,9 +57,10 @@ from typing import Any, Callable, Optional
 
 import numpy as np
 
-from .config import FilterConfig, OdometryMotionConfig, WheelsConfig
+from .config import FilterConfig, LaserConfig, OdometryMotionConfig, WheelsConfig
 from .faults import ODOMETRY_NONFINITE, ScanChecks
 from .geometry import compose
+from .mount import MOSTLY_FLOOR, MountBuffer, compose_extrinsic, kept_fraction
 from .odometry import GyroBuffer, OdometryBuffer, WheelOdometryIntegrator
 from .stages import PredictionStage
 
@@ -78,6 +84,7 @@ class SendCorrection:
     particles: np.ndarray
     log_weights: np.ndarray
     odom: np.ndarray
+    mount: Optional[np.ndarray] = None  # (12,) the lidar's mount at the scan's stamp (moving mount)
 
 
 @dataclasses.dataclass
@@ -140,13 +147,17 @@ class PredictorScheduler:
         Called with each action as it is decided; without it, each event returns its actions.
     stage : PredictionStage, optional
         The prediction stage to drive (default: a new one from the two configs).
+    laser_cfg : LaserConfig, optional
+        With ``dynamic_frame`` set: a moving mount (:meth:`add_mount`, scans' geometry in
+        :meth:`add_scan`); otherwise unused.
     """
 
     def __init__(self, filter_cfg: FilterConfig, motion_cfg: OdometryMotionConfig,
                  odometry_source: str = "odom", odom_sync: str = "interpolate",
                  wheels_cfg: Optional[WheelsConfig] = None, gyro: bool = False, odom_wait_scans: int = 50,
                  stamp_offset_s: float = 2.0, time_gap_s: float = 60.0,
-                 emit: Optional[Callable[[Any], None]] = None, stage: Optional[PredictionStage] = None) -> None:
+                 emit: Optional[Callable[[Any], None]] = None, stage: Optional[PredictionStage] = None,
+                 laser_cfg: Optional[LaserConfig] = None) -> None:
         if odometry_source not in ("odom", "encoders"):
             raise ValueError(f"odometry_source must be 'odom' or 'encoders', got {odometry_source!r}")
         if gyro and odometry_source != "encoders":
@@ -193,6 +204,14 @@ class PredictorScheduler:
         self.fog_received = 0
         self.fog_expected: Optional[int] = None
         self.last_imu_ns: Optional[int] = None
+        # a moving mount: its samples, the scans' geometry, the per-scan decision (once per scan)
+        self.laser_cfg = laser_cfg
+        self.mount = MountBuffer() if laser_cfg is not None and laser_cfg.dynamic_frame else None
+        self.mount_arrived = 0
+        self.mount_expected: Optional[int] = None
+        self.mostly_floor = 0
+        self._geometry: dict[int, tuple] = {}
+        self._mount_decided: Optional[tuple[int, bool, Optional[np.ndarray]]] = None
 
     # ------------------------------------------------------------------ plumbing
     def _emit(self, action: Any) -> None:
@@ -265,11 +284,24 @@ class PredictorScheduler:
         self._drain_odometry()
         return self._done()
 
+    def add_mount(self, stamp: int, quat_xyzw, translation) -> list:
+        """A sample of the moving mount (``base_frame -> laser.dynamic_frame``) at ``stamp``
+        (ns); ``quat_xyzw=None``: a message without it (counted only, so the end-of-stream count
+        still matches)."""
+        self.mount_arrived += 1
+        if self.mount is not None and quat_xyzw is not None:
+            self.mount.add(stamp, quat_xyzw, translation)
+        self._drain()
+        return self._done()
+
     def add_scan(self, stamp: Optional[int], usable: bool, payload: Any,
-                 faults: list[tuple[str, str]] = ()) -> list:
+                 faults: list[tuple[str, str]] = (), geometry: Optional[tuple] = None) -> list:
         """A scan at ``stamp`` (ns; None: unreadable, posed at the previous scan's stamp and
         odometry). ``usable``: it can be corrected with (see :attr:`checks`, which also gives
-        ``faults``). ``payload`` is handed back in :class:`SendCorrection`."""
+        ``faults``). ``payload`` is handed back in :class:`SendCorrection`. ``geometry``:
+        ``(ranges, angles, range_min, range_max)``, needed with a moving mount only."""
+        if self.mount is not None and geometry is not None:
+            self._geometry[self.scan_count] = geometry
         for kind, text in faults:
             self._fault(kind, f"scan {self.scan_count}: {text}")
         if stamp is not None and self.stamp_offset_ns > 0:
@@ -292,8 +324,9 @@ class PredictorScheduler:
             self._drain()
         return self._done()
 
-    def end_of_stream(self, scans: int, odometry: int, gyro: int = 0) -> list:
-        """The input ended after this many scan, odometry (or encoder) and gyro messages."""
+    def end_of_stream(self, scans: int, odometry: int, gyro: int = 0, mount: int = 0) -> list:
+        """The input ended after this many scan, odometry (or encoder), gyro and mount messages."""
+        self.mount_expected = int(mount)
         self.odom_expected = int(odometry)
         self.fog_expected = int(gyro)
         self.scans_expected = int(scans)
@@ -302,10 +335,10 @@ class PredictorScheduler:
         self._drain()
         return self._done()
 
-    def stall(self, pose: Optional[int], scans: int, odometry: int, gyro: int = 0) -> list:
+    def stall(self, pose: Optional[int], scans: int, odometry: int, gyro: int = 0, mount: int = 0) -> list:
         """The replay stopped (max_in_flight) after publishing this many messages, waiting for
         pose number ``pose``."""
-        self._stall = {"pose": pose, "scans": scans, "odometry": odometry, "gyro": gyro}
+        self._stall = {"pose": pose, "scans": scans, "odometry": odometry, "gyro": gyro, "mount": mount}
         self._drain()
         return self._done()
 
@@ -320,6 +353,9 @@ class PredictorScheduler:
             out["encoder_jump"] = self.wheels.jumps
         if self.gyro is not None:
             out["fog_out_of_order"] = self.gyro.out_of_order
+        if self.mount is not None:
+            out[MOSTLY_FLOOR] = self.mostly_floor
+            out["mount_out_of_order"] = self.mount.out_of_order
         return out
 
     def gyro_status(self) -> dict:
@@ -383,7 +419,8 @@ class PredictorScheduler:
                 and st["pose"] == self.poses_published  # it waits for our next pose
                 and st["scans"] == self.scan_count
                 and st["odometry"] == self.odom_arrived
-                and (self.gyro is None or st["gyro"] == self.fog_received))
+                and (self.gyro is None or st["gyro"] == self.fog_received)
+                and (self.mount is None or st["mount"] == self.mount_arrived))
 
     def _drain(self) -> None:
         if self.encoders_used:
@@ -392,11 +429,18 @@ class PredictorScheduler:
             index, stamp, usable, payload, _ = self.scans[0]
             if self.waiting_for is not None and index == self.blocked:
                 break  # a correction is in flight and this scan needs the next one
-            odom = self._odom_at(peek=self.waiting_for is not None)
+            peek = self.waiting_for is not None or self.mount is not None
+            odom = self._odom_at(peek=peek)
             if odom is None:
                 break
             # without its own odometry the scan's pose is a guess: posed, not corrected or mapped with
-            usable = usable and not (self.odom.peek_missing if self.waiting_for is not None else self.odom.last_missing)
+            usable = usable and not (self.odom.peek_missing if peek else self.odom.last_missing)
+            mount = None
+            if self.mount is not None and stamp is not None and usable and self.stage.gate(odom)[0]:
+                decided = self._mount_decision(index, stamp)
+                if decided is None:
+                    break  # the mount's samples do not reach this scan's stamp yet
+                usable, mount = decided
             if stamp is None:  # unreadable: the previous scan's stamp (0 for a first scan)
                 stamp = self.prev_odom[0] if self.prev_odom is not None else 0
             if self.waiting_for is not None:
@@ -407,14 +451,45 @@ class PredictorScheduler:
                     break
                 self._odom_at(peek=False)  # consume what peek saw
                 self.scans.popleft()
+                self._geometry.pop(index, None)
                 self._emit(PublishOdomTf(odom, stamp))
                 self.deferred.append((index, stamp, odom, delta))
                 continue
+            if peek:
+                self._odom_at(peek=False)  # consume what peek saw
             self.scans.popleft()
+            self._geometry.pop(index, None)
             self._emit(PublishOdomTf(odom, stamp))
-            self._predict(index, stamp, odom, usable, payload)
+            self._predict(index, stamp, odom, usable, payload, mount)
         self.odom.trim()
         self._maybe_send_end()
+
+    def _mount_decision(self, index: int, stamp: int) -> Optional[tuple[bool, Optional[np.ndarray]]]:
+        """(usable, the mount (12,) at the stamp) for a scan that would be corrected, or None while
+        the mount's samples may still reach its stamp. Decided once per scan (a mostly-floor scan
+        is counted once, however often the queue is looked at)."""
+        if self._mount_decided is not None and self._mount_decided[0] == index:
+            return self._mount_decided[1:]
+        final = ((self.mount_expected is not None and self.mount_arrived >= self.mount_expected)
+                 or self._stalled() or 0 < self.odom_wait_scans < len(self.scans))
+        if not self.mount.covers(stamp) and not final:
+            return None
+        dyn = self.mount.at(stamp)
+        if dyn is None:  # no sample at all: the static part alone (the mount frame at the base)
+            dyn = (np.eye(3), np.zeros(3))
+        cfg = self.laser_cfg
+        ext = compose_extrinsic(dyn[0], dyn[1], cfg.extrinsic)
+        usable = True
+        geometry = self._geometry.get(index)
+        if cfg.min_kept_fraction > 0 and geometry is not None:
+            kept = kept_fraction(geometry[0], geometry[1], cfg, ext, geometry[2], geometry[3])
+            if kept < cfg.min_kept_fraction:
+                usable = False
+                self.mostly_floor += 1
+                self._fault(MOSTLY_FLOOR, f"scan {index}: {kept:.0%} of its returns are above the floor "
+                            f"(laser.min_kept_fraction {cfg.min_kept_fraction:g}): posed from odometry")
+        self._mount_decided = (index, usable, ext)
+        return usable, ext
 
     def _odom_at(self, peek: bool) -> Optional[np.ndarray]:
         """The odometry of the scan at the head of the queue, or None while it may still come.
@@ -487,14 +562,16 @@ class PredictorScheduler:
         else:
             self._fault("odom_stamp_offset", f"odometry {by_ns / 1e9:.3f} s {how} scan stamp {stamp / 1e9:.3f} s")
 
-    def _predict(self, index: int, stamp: int, odom: np.ndarray, usable: bool, payload: Any) -> None:
+    def _predict(self, index: int, stamp: int, odom: np.ndarray, usable: bool, payload: Any,
+                 mount: Optional[np.ndarray] = None) -> None:
         if not usable:  # a scan the correlator cannot use: posed from odometry
             self._pass_through(index, stamp, odom, self.stage.gate(odom)[1])
             return
         update, delta = self.stage.predict(odom)
         if update:
             self.waiting_for = index
-            self._emit(SendCorrection(index, stamp, payload, self.stage.particles, self.stage.log_weights, odom))
+            self._emit(SendCorrection(index, stamp, payload, self.stage.particles, self.stage.log_weights, odom,
+                                      mount))
             return
         self._pass_through(index, stamp, odom, delta)
 

@@ -146,9 +146,9 @@ class ParticleFilterSlam:
         self.scheduler = PredictorScheduler(self.predictor.filter_cfg, self.predictor.motion_cfg,
                                             odometry_source, odom_sync, wheels_cfg, gyro=gyro,
                                             odom_wait_scans=0, stamp_offset_s=0.0, time_gap_s=time_gap_s,
-                                            stage=self.predictor)
+                                            stage=self.predictor, laser_cfg=self.mapper.laser_cfg)
         self.stream_poses = []
-        self._counts = {"scans": 0, "odometry": 0, "gyro": 0}
+        self._counts = {"scans": 0, "odometry": 0, "gyro": 0, "mount": 0}
         return self.scheduler
 
     def _run(self, actions: list) -> None:
@@ -161,8 +161,9 @@ class ParticleFilterSlam:
             elif isinstance(a, SendCorrection):
                 ranges, angles, range_min, range_max = a.payload
                 first = self._pose is None
-                c = self.corrector.correct(a.particles, a.log_weights, ranges, angles, range_min, range_max)
-                patch = self.mapper.integrate(c.pose, ranges, angles, range_min, range_max)
+                c = self.corrector.correct(a.particles, a.log_weights, ranges, angles, range_min, range_max,
+                                           extrinsic=a.mount)
+                patch = self.mapper.integrate(c.pose, ranges, angles, range_min, range_max, extrinsic=a.mount)
                 self.corrector.apply_patch(patch)
                 self._pose = c.pose.copy()
                 self.num_updates += 0 if first else 1
@@ -178,7 +179,14 @@ class ParticleFilterSlam:
                                         range_min, range_max)
         angles = angle_min + angle_increment * np.arange(ranges.size, dtype=np.float64)
         self._counts["scans"] += 1
-        self._run(s.add_scan(int(stamp_ns), usable, (ranges, angles, float(range_min), float(range_max)), faults))
+        geometry = (ranges, angles, float(range_min), float(range_max))
+        self._run(s.add_scan(int(stamp_ns), usable, geometry, faults, geometry=geometry))
+
+    def add_mount(self, stamp_ns: int, quat_xyzw, translation) -> None:
+        """A sample of the moving mount (``base -> laser.dynamic_frame``, e.g. THOR's base_link ->
+        head on /tf); None: a /tf message without it."""
+        self._counts["mount"] += 1
+        self._run(self.scheduler.add_mount(int(stamp_ns), quat_xyzw, translation))
 
     def add_odometry(self, stamp_ns: int, pose: np.ndarray) -> None:
         """An odometry pose ``(x, y, yaw)`` (odometry_source 'odom')."""
@@ -205,5 +213,5 @@ class ParticleFilterSlam:
     def end_of_stream(self) -> list[tuple[int, np.ndarray]]:
         """No more input: the scans still waiting are posed. Returns :attr:`stream_poses`."""
         c = self._counts
-        self._run(self.scheduler.end_of_stream(c["scans"], c["odometry"], c["gyro"]))
+        self._run(self.scheduler.end_of_stream(c["scans"], c["odometry"], c["gyro"], c["mount"]))
         return self.stream_poses

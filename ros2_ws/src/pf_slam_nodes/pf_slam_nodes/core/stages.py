@@ -30,6 +30,7 @@ from .geometry import relative_pose
 from .grid import LogOddsGrid, grid_geometry, grow_array, growth_plan
 from .localization import Localizer, pending_from_config
 from .motion import sample_odometry_motion
+from .mount import mounted_scan
 from .scan import planar_scan, scan_to_points, transform_points
 
 MOTION_STREAM = 1
@@ -248,13 +249,15 @@ class CorrectionStage:
         return keep
 
     def correct(self, particles: np.ndarray, log_weights: np.ndarray, ranges: np.ndarray,
-                angles: np.ndarray, range_min: float = 0.0, range_max: float = math.inf) -> Correction:
-        """Correct a predicted set with a scan (ranges (B,), beam angles (B,) in the sensor frame)."""
+                angles: np.ndarray, range_min: float = 0.0, range_max: float = math.inf,
+                extrinsic: Optional[np.ndarray] = None) -> Correction:
+        """Correct a predicted set with a scan (ranges (B,), beam angles (B,) in the sensor frame;
+        ``extrinsic``: this scan's mount (12,) on a moving mount, else the configured one)."""
         t0 = t0_all = time.perf_counter()
         particles = np.asarray(particles, dtype=np.float64).reshape(-1, 3)
         log_w = np.asarray(log_weights, dtype=np.float64)
-        ranges, angles, offset = planar_scan(ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset,
-                                             range_min, range_max)
+        ranges, angles, offset = scan_in_base(ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset,
+                                              range_min, range_max, extrinsic)
         pts = scan_to_points(ranges, angles, max(range_min, 1e-6), min(range_max, self.corr_cfg.range_max_m))
         if np.any(offset):
             pts = transform_points(pts, offset)
@@ -294,6 +297,15 @@ class CorrectionStage:
         return Correction(particles, log_w, pose, resampled, bool(matched))
 
 
+def scan_in_base(ranges, angles, laser: LaserConfig, planar_offset, range_min: float, range_max: float,
+                 extrinsic: Optional[np.ndarray] = None):
+    """:func:`planar_scan` with the configured mount, or with ``extrinsic`` (12,), this scan's
+    mount on a moving mount (core/mount.py)."""
+    if extrinsic is None:
+        return planar_scan(ranges, angles, laser, planar_offset, range_min, range_max)
+    return mounted_scan(ranges, angles, laser, extrinsic, range_min, range_max)
+
+
 def pose_estimate(particles: np.ndarray, log_w: np.ndarray, cfg: FilterConfig) -> np.ndarray:
     """The pose of a corrected set (``cfg.pose_estimate``): the best particle, or the weighted
     mean of all particles (yaw on the circle)."""
@@ -324,22 +336,24 @@ class MappingStage:
         return self.grid is not None
 
     def integrate(self, pose: np.ndarray, ranges: np.ndarray, angles: np.ndarray,
-                  range_min: float = 0.0, range_max: float = math.inf) -> MapPatch:
-        """Integrate a scan at a corrected pose; returns the patch of the cells it touched."""
+                  range_min: float = 0.0, range_max: float = math.inf,
+                  extrinsic: Optional[np.ndarray] = None) -> MapPatch:
+        """Integrate a scan at a corrected pose; returns the patch of the cells it touched
+        (``extrinsic``: this scan's mount (12,) on a moving mount, else the configured one)."""
         t0 = time.perf_counter()
-        patch = self._integrate(pose, ranges, angles, range_min, range_max)
+        patch = self._integrate(pose, ranges, angles, range_min, range_max, extrinsic)
         self.clock.add("map", t0)
         return patch
 
     def _integrate(self, pose: np.ndarray, ranges: np.ndarray, angles: np.ndarray,
-                   range_min: float, range_max: float) -> MapPatch:
+                   range_min: float, range_max: float, extrinsic: Optional[np.ndarray] = None) -> MapPatch:
         pose = np.asarray(pose, dtype=np.float64).reshape(3)
         if self.grid is None:
             self.grid = LogOddsGrid(self.grid_cfg, center_xy=pose[:2])
             self._occ = self.grid.occupancy()
         g = self.grid
-        ranges, angles, offset = planar_scan(ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset,
-                                             range_min, range_max)
+        ranges, angles, offset = scan_in_base(ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset,
+                                              range_min, range_max, extrinsic)
         g.integrate_scan(pose, ranges, angles, offset, range_min, range_max)
         if g.last_growth is not None:  # the grid grew by whole tiles: so does its occupancy
             self._occ = grow_array(self._occ, g.last_growth, -1)

@@ -85,6 +85,13 @@ PARAM_DOCS: dict[str, str] = {
     "left_info_topic": "texture: left camera_info topic",
     "right_info_topic": "texture: right camera_info topic",
     "use_map_metadata": "texture: take the geometry from map_metadata (true) or from map (false)",
+    "camera": "texture: 'stereo' (a stereo pair) or 'depth' (an RGB-D camera: colour + 16UC1 depth)",
+    "rgb_topic": "texture, depth mode: colour image topic (rgb8 / bgr8)",
+    "depth_topic": "texture, depth mode: depth image topic (16UC1, mm)",
+    "rgb_info_topic": "texture, depth mode: colour camera_info topic (k)",
+    "depth_info_topic": "texture, depth mode: depth camera_info topic (k)",
+    "depth_pair_tol_s": "texture, depth mode: a depth image is paired with the colour image nearest in time within this (s)",
+    "floor_height_m": "texture, depth mode: the kinematic floor's height in base_frame (m); the fitted floor is checked against it",
 }
 
 
@@ -255,6 +262,11 @@ def scan_fields(scan) -> tuple[np.ndarray, np.ndarray, float, float]:
         return np.empty(0), np.empty(0), 0.0, math.inf
     from ..ros.convert import scan_arrays
     return (*scan_arrays(scan), float(scan.range_min), float(scan.range_max))
+
+
+def mount_of(pa):
+    """The per-scan lidar mount a ParticleArray carries ((12,) array), or None: the static one."""
+    return np.asarray(pa.mount, dtype=np.float64) if len(pa.mount) == 12 else None
 
 
 def status_publisher(node: Node, status: Callable[[], dict]) -> Callable[[], None]:

@@ -35,7 +35,7 @@ from sensor_msgs.msg import LaserScan
 from ..core.geometry import compose, quat_to_yaw
 from ..core.stages import CorrectionStage, MapPatch
 from ..ros import cdr, convert, qos, topics
-from .common import (ScanQueue, announce_when_matched, declare_config, param, run_node, scan_fields,
+from .common import (ScanQueue, announce_when_matched, declare_config, mount_of, param, run_node, scan_fields,
                      status_publisher)
 
 
@@ -147,7 +147,7 @@ class Correlator(Node):
                 if scan is None:
                     self.get_logger().warn(f"scan {pa.scan_index} was lost on the way here (a replay faster "
                                            "than the graph): its set is not corrected", throttle_duration_sec=5.0)
-                res = self.stage.correct(particles, log_w, *scan_fields(scan))
+                res = self.stage.correct(particles, log_w, *scan_fields(scan), extrinsic=mount_of(pa))
                 particles, log_w, pose = res.particles, res.log_weights, res.pose
                 self.corrections_sent += 1
                 self.pub_cloud.publish(self.cloud_cdr.pack(particles, stamp))
@@ -159,7 +159,7 @@ class Correlator(Node):
             self.pub_updated.publish(convert.particles_to_msg(
                 particles, log_w, stamp_ns=stamp, frame_id=self.map_frame,
                 scan_index=pa.scan_index, update=pa.update, odom_pose=pa.odom_pose,
-                pending_delta=pa.pending_delta, pose=pose))
+                pending_delta=pa.pending_delta, pose=pose, mount=pa.mount))
 
 
 def main(args: list[str] | None = None) -> int:

@@ -16,7 +16,7 @@ from typing import Any
 #: Config sections each node declares (``<section>.<field>`` for every field of the class).
 NODE_SECTIONS: dict[str, tuple[str, ...]] = {
     "bag_replay": (),
-    "predictor": ("filter", "motion", "wheels"),  # wheels: with odometry_source encoders only
+    "predictor": ("filter", "motion", "wheels", "laser"),  # wheels: with odometry_source encoders only
     "correlator": ("filter", "grid", "correlation", "resample", "laser", "localization"),
     "mapper": ("filter", "grid", "laser"),
     "texture": ("texture",),
@@ -40,7 +40,10 @@ NODE_PLAIN: dict[str, dict[str, Any]] = {
                 "worker_nice": 10, "pose_buffer_size": 3000, "left_topic": "/stereo/left/image_raw",
                 "right_topic": "/stereo/right/image_raw", "left_info_topic": "/stereo/left/camera_info",
                 "right_info_topic": "/stereo/right/camera_info", "use_map_metadata": True,
-                "expected_observers": 0},
+                "expected_observers": 0, "camera": "stereo", "rgb_topic": "/kinect/rgb/image_raw",
+                "depth_topic": "/kinect/depth/image_raw", "rgb_info_topic": "/kinect/rgb/camera_info",
+                "depth_info_topic": "/kinect/depth/camera_info", "depth_pair_tol_s": 0.05,
+                "floor_height_m": 0.0},
 }
 
 #: Keys of a parameter file's '/**' section that no node declares: `pf-slam run` reads them.

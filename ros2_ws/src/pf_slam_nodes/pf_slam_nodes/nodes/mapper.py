@@ -33,7 +33,7 @@ from ..core.geometry import compose, matrix_to_quat, relative_pose
 from ..core.stages import MappingStage
 from ..io.mapfile import read_map, trinary
 from ..ros import convert, qos, topics
-from .common import (ScanQueue, announce_when_matched, declare_config, param, run_node, scan_fields,
+from .common import (ScanQueue, announce_when_matched, declare_config, mount_of, param, run_node, scan_fields,
                      status_publisher)
 
 
@@ -129,7 +129,7 @@ class Mapper(Node):
 
     def _integrate(self, pa: ParticleArray, pose: np.ndarray, scan, stamp: int) -> None:
         """SLAM: the scan into the grid at the pose; its patch to the correlator."""
-        patch = self.stage.integrate(pose, *scan_fields(scan))
+        patch = self.stage.integrate(pose, *scan_fields(scan), extrinsic=mount_of(pa))
         g = self.stage.grid
         if g.scans_beyond_bound and not self._warned_bound:
             self._warned_bound = True

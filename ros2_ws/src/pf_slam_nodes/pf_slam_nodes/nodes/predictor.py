@@ -7,6 +7,9 @@ corrected set), pf_slam/replay_status (end of the bag). Publishes: pose (PoseSta
 frame, exactly one per scan, in scan order), particles/predicted (one per correction),
 pf_slam/scan_corrected (the bytes of each scan it sends to be corrected, before its set), /tf
 (odom_frame -> base_frame: the dead-reckoned odometry at every scan's stamp, REP 105).
+With a lidar on a moving mount (laser.dynamic_frame, e.g. THOR's head) it also subscribes /tf
+for base_frame -> dynamic_frame and sends each corrected scan's mount at its stamp with its set
+(ParticleArray.mount); mostly-floor scans are posed from odometry (core/mount.py).
 
 Per scan, in order: the odometry pose at the scan stamp is looked up; if the robot moved less
 than filter.min_travel_m / filter.min_rotation_rad since the last correction, the scan is a
@@ -100,11 +103,22 @@ class Predictor(Node):
             self.create_subscription(Vector3Stamped, topics.FOG, self._on_fog_vector, qos.pipeline(100000))
         elif fog == "imu":
             self.create_subscription(Imu, topics.IMU, self._on_imu, qos.pipeline(100000))
+        # a lidar on a moving mount: base_frame -> laser.dynamic_frame from /tf
+        laser_cfg = declare_config(self, "laser")
+        self.mount_frames = None
+        if laser_cfg.dynamic_frame:
+            frame = lambda name: str(self.get_parameter(name).value).lstrip("/")  # noqa: E731 (declared above)
+            self.mount_frames = (frame("base_frame"), laser_cfg.dynamic_frame.lstrip("/"))
+            # the graph's own /tf (the mapper's map -> odom, this node's odom -> base when it publishes
+            # it) is not the bag's: not counted against the replay's /tf count
+            self._own_tf = {(frame("map_frame"), frame("odom_frame"))} | (
+                {(frame("odom_frame"), frame("base_frame"))} if self.pub_tf is not None else set())
+            self.create_subscription(TFMessage, topics.TF, self._on_tf, qos.pipeline(10000), raw=True)
         # every decision is the scheduler's; its actions are published as they are decided
         self.sched = sch.PredictorScheduler(filter_cfg, motion_cfg, source, odom_sync, wheels_cfg,
                                             gyro=fog != "none", odom_wait_scans=odom_wait_scans,
                                             stamp_offset_s=stamp_offset_s, time_gap_s=time_gap_s,
-                                            emit=self._act)
+                                            emit=self._act, laser_cfg=laser_cfg)
         self.stage = self.sched.stage
         # "final" once the last scan of the bag is posed: the run's summary waits for it
         self._publish_status = status_publisher(self, self.sched.status)
@@ -127,7 +141,7 @@ class Predictor(Node):
             self.pub_scan.publish(a.payload)
             self.pub.publish(convert.particles_to_msg(
                 a.particles, a.log_weights, stamp_ns=a.stamp, frame_id=self.map_frame,
-                scan_index=a.index, update=True, odom_pose=a.odom))
+                scan_index=a.index, update=True, odom_pose=a.odom, mount=a.mount))
         elif isinstance(a, sch.SendEnd):
             self.pub.publish(convert.particles_to_msg(
                 np.zeros((0, 3)), np.zeros(0), stamp_ns=a.stamp, frame_id=self.map_frame,
@@ -180,17 +194,41 @@ class Predictor(Node):
             self.get_logger().error(f"{topic}: message dropped: {exc}", throttle_duration_sec=5.0)
             return None, None
 
+    def _on_tf(self, raw: bytes) -> None:
+        """/tf: the moving mount's samples. Messages of the graph itself (odom -> base, map ->
+        odom) are not counted; every other one is (the replay's count of the bag's /tf)."""
+        sample, own = None, True
+        try:
+            transforms = cdr.tf_transforms(raw)
+        except ValueError as exc:  # counted (the replay counts it), no sample
+            self.get_logger().error(f"/tf: message dropped: {exc}", throttle_duration_sec=5.0)
+            transforms, own = [], False
+        for stamp, parent, child, t, q in transforms:
+            key = (parent.lstrip("/"), child.lstrip("/"))
+            own = own and key in self._own_tf
+            if key == self.mount_frames:
+                sample = (stamp, q, t)
+        if own and sample is None:
+            return
+        if sample is None:
+            self.sched.add_mount(0, None, None)
+        else:
+            self.sched.add_mount(*sample)
+
     def _on_scan(self, raw: bytes) -> None:
         checks = self.sched.checks
+        geometry = None
         try:
             stamp, (a_min, a_max, a_inc), (r_min, r_max), ranges = cdr.laser_scan_fields(raw)
             usable, faults = checks.check(stamp, ranges, a_min, a_max, a_inc, r_min, r_max)
+            if self.mount_frames is not None:
+                geometry = (ranges, a_min + a_inc * np.arange(len(ranges), dtype=np.float64), r_min, r_max)
         except ValueError as exc:
             # posed from odometry at its own stamp when the header is readable and plausible, else
             # at the previous scan's stamp and odometry (without waiting)
             stamp, usable = checks.readable_stamp(raw, cdr.CdrReader), False
             faults = checks.unreadable(exc, stamp is not None)
-        self.sched.add_scan(stamp, usable, raw, faults)
+        self.sched.add_scan(stamp, usable, raw, faults, geometry=geometry)
 
     def _on_updated(self, msg: ParticleArray) -> None:
         if msg.update and msg.scan_index == self.sched.waiting_for:
@@ -202,12 +240,13 @@ class Predictor(Node):
         counts = dict(zip(msg.topics, msg.counts))
         self.sched.end_of_stream(scans=int(counts.get(self.scan_topic, 0)),
                                  odometry=int(counts.get(self.odom_topic, 0)),
-                                 gyro=int(counts.get(self.fog_topic, 0)))
+                                 gyro=int(counts.get(self.fog_topic, 0)), mount=int(counts.get(topics.TF, 0)))
 
     def _on_stall(self, msg: ReplayStatus) -> None:
         st = dict(zip(msg.topics, msg.counts))
         self.sched.stall(pose=st.get(topics.POSE), scans=st.get(self.scan_topic, 0),
-                         odometry=st.get(self.odom_topic, 0), gyro=st.get(self.fog_topic, 0))
+                         odometry=st.get(self.odom_topic, 0), gyro=st.get(self.fog_topic, 0),
+                         mount=st.get(topics.TF, 0))
 
 
 def main(args: list[str] | None = None) -> int:

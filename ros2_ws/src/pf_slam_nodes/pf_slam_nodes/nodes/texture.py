@@ -45,6 +45,15 @@ an executor it shares with the SLAM nodes. Ready pairs wait in a queue of ``queu
 (``frames_skipped``). Pairs waiting for their pose are kept up to ``max_pending_pairs``
 (older ones are skipped too).
 
+Depth mode (``mode: depth``, an RGB-D camera: THOR's Kinect v2; `pf-slam run` chooses it for a
+bag with ``/kinect/rgb/image_raw`` + ``/kinect/depth/image_raw``): ``rgb_topic`` (``rgb8`` /
+``bgr8``) and ``depth_topic`` (``16UC1`` mm) paired by time (nearest within
+``depth_pair_tol_s``), their ``camera_info`` (``k``), the camera's mount at the image stamp from
+``/tf_static`` + ``/tf`` (the chain from the RGB optical frame up to ``base_frame``, dynamic
+links such as base_link -> head interpolated at the stamp; the depth frame's ``/tf_static``
+transform in the RGB frame is ``P_rgb = R P_depth + T``), and the kinematic floor height
+``floor_height_m`` in the base frame (core/texture/depth.py).
+
 Parameters: ``texture.<field>`` for every :class:`pf_slam_nodes.core.texture.TextureConfig`
 field, plus the ones declared in ``__init__``.
 """
@@ -69,7 +78,9 @@ from geometry_msgs.msg import PoseStamped
 from tf2_msgs.msg import TFMessage
 
 from ..core.geometry import quat_to_matrix, quat_to_yaw
-from ..core.texture import StereoRig, StereoTexturer, TextureConfig, TextureMap, interpolate_poses
+from ..core.mount import MountBuffer
+from ..core.texture import (DepthCamera, DepthTexturer, StereoRig, StereoTexturer, TextureConfig, TextureMap,
+                            interpolate_poses)
 from ..io.calib import read_stereo_rig
 from ..ros import convert, qos, topics
 from .common import announce_when_matched, declare_config, param, run_node
@@ -93,12 +104,26 @@ def image_array(msg: Image) -> np.ndarray:
     return a.reshape(h, w, ch) if ch == 3 else a
 
 
+def depth_array(msg: Image) -> np.ndarray:
+    """``sensor_msgs/Image`` ``16UC1`` / ``mono16`` (mm) -> ``(H, W)`` uint16."""
+    if msg.encoding.lower() not in ("16uc1", "mono16"):
+        raise ValueError(f"depth image encoding {msg.encoding!r}: needs 16UC1 (mm)")
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    buf = np.frombuffer(msg.data, dtype=np.uint8)
+    if step < 2 * w or buf.size < h * step:
+        raise ValueError(f"depth image {w} x {h} with step {step} has {buf.size} bytes")
+    a = buf[: h * step].reshape(h, step)[:, : 2 * w].copy().view(">u2" if msg.is_bigendian else "<u2")
+    return a.astype(np.uint16)
+
+
 @dataclasses.dataclass
 class _Pair:
     stamp_ns: int
     left: Image
     right: Image
     pose: Optional[np.ndarray] = None
+    mount: Optional[tuple[np.ndarray, np.ndarray]] = None  # depth mode: the RGB camera in the base frame
+    rgb_from_depth: Optional[tuple[np.ndarray, np.ndarray]] = None  # depth mode: at their two stamps
 
 
 class TextureNode(Node):
@@ -129,6 +154,15 @@ class TextureNode(Node):
         right_topic = param(self, "right_topic", "/stereo/right/image_raw")
         left_info = param(self, "left_info_topic", "/stereo/left/camera_info")
         right_info = param(self, "right_info_topic", "/stereo/right/camera_info")
+        self.mode = param(self, "camera", "stereo")
+        if self.mode not in ("stereo", "depth"):
+            raise ValueError(f"node {self.get_name()}: parameter 'camera' must be 'stereo' or 'depth', got {self.mode!r}")
+        rgb_topic = param(self, "rgb_topic", "/kinect/rgb/image_raw")
+        depth_topic = param(self, "depth_topic", "/kinect/depth/image_raw")
+        rgb_info = param(self, "rgb_info_topic", "/kinect/rgb/camera_info")
+        depth_info = param(self, "depth_info_topic", "/kinect/depth/camera_info")
+        self.pair_tol_ns = int(param(self, "depth_pair_tol_s", 0.05) * 1e9)
+        self.floor_height_m = param(self, "floor_height_m", 0.0)
         if not period > 0 or self.queue_depth < 1 or self.max_pending_pairs < 1 or pose_buffer < 2:
             raise ValueError(f"node {self.get_name()}: publish_period_s must be > 0, queue_depth "
                              ">= 1, max_pending_pairs >= 1, pose_buffer_size >= 2")
@@ -141,6 +175,9 @@ class TextureNode(Node):
             self._extrinsic = (np.array(ext[:9]).reshape(3, 3), np.array(ext[9:]))
         self._infos: dict[str, CameraInfo] = {}
         self._tf: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self._static: dict[str, tuple[str, np.ndarray, np.ndarray]] = {}  # child -> (parent, R, t)
+        self._dynamic: dict[str, tuple[str, MountBuffer]] = {}  # child -> (parent, samples) from /tf
+        self.camera: Optional[DepthCamera] = None
         self.rig: Optional[StereoRig] = None
         if self.calibration_dir:
             self.rig = read_stereo_rig(self.calibration_dir)
@@ -162,6 +199,7 @@ class TextureNode(Node):
         self.frames_processed = 0
         self.frames_skipped = 0
         self.frames_dropped = 0
+        self.plane_fits = 0  # depth mode: pairs whose floor fit passed the kinematic check
         self.ms_total = 0.0
         self.last_stamp_ns = 0
         self.last_error = ""
@@ -176,12 +214,19 @@ class TextureNode(Node):
         self.pub_status = self.create_publisher(String, TEXTURE_STATUS, qos.latched())
         announce_when_matched(self, [(self.pub_texture, param(self, "expected_observers", 0))])
         img_qos = qos.pipeline(max(4 * self.max_pending_pairs, 20))
-        self.create_subscription(Image, left_topic, lambda m: self._on_image("left", m), img_qos)
-        self.create_subscription(Image, right_topic, lambda m: self._on_image("right", m), img_qos)
-        self.create_subscription(CameraInfo, left_info, lambda m: self._on_info("left", m),
-                                 qos.pipeline(10))
-        self.create_subscription(CameraInfo, right_info, lambda m: self._on_info("right", m),
-                                 qos.pipeline(10))
+        if self.mode == "depth":
+            self.create_subscription(Image, rgb_topic, lambda m: self._on_rgbd("left", m), img_qos)
+            self.create_subscription(Image, depth_topic, lambda m: self._on_rgbd("right", m), img_qos)
+            self.create_subscription(CameraInfo, rgb_info, lambda m: self._on_info("left", m), qos.pipeline(10))
+            self.create_subscription(CameraInfo, depth_info, lambda m: self._on_info("right", m), qos.pipeline(10))
+            self.create_subscription(TFMessage, topics.TF, self._on_tf, qos.pipeline(10000))
+        else:
+            self.create_subscription(Image, left_topic, lambda m: self._on_image("left", m), img_qos)
+            self.create_subscription(Image, right_topic, lambda m: self._on_image("right", m), img_qos)
+            self.create_subscription(CameraInfo, left_info, lambda m: self._on_info("left", m),
+                                     qos.pipeline(10))
+            self.create_subscription(CameraInfo, right_info, lambda m: self._on_info("right", m),
+                                     qos.pipeline(10))
         self.create_subscription(TFMessage, topics.TF_STATIC, self._on_tf_static, qos.latched(10))
         self.create_subscription(PoseStamped, topics.POSE, self._on_pose, qos.pipeline())
         if param(self, "use_map_metadata", True):  # same geometry, without the cells
@@ -205,6 +250,12 @@ class TextureNode(Node):
 
     def _on_tf_static(self, msg: TFMessage) -> None:
         for tr in msg.transforms:
+            t, q = tr.transform.translation, tr.transform.rotation
+            try:
+                self._static[tr.child_frame_id.lstrip("/")] = (
+                    tr.header.frame_id.lstrip("/"), quat_to_matrix(q.x, q.y, q.z, q.w), np.array([t.x, t.y, t.z]))
+            except ValueError:
+                pass  # warned below when it is the camera's
             if tr.header.frame_id == self.base_frame:
                 t, q = tr.transform.translation, tr.transform.rotation
                 try:
@@ -216,6 +267,86 @@ class TextureNode(Node):
                 self._tf[tr.child_frame_id] = (rot, np.array([t.x, t.y, t.z]))
         self._ensure_rig()
         self._release()
+
+    def _on_tf(self, msg: TFMessage) -> None:
+        """/tf (depth mode): the moving links of the camera's chain (e.g. base_link -> head)."""
+        own = (self.base_frame, "odom")
+        for tr in msg.transforms:
+            child = tr.child_frame_id.lstrip("/")
+            if child in own:
+                continue
+            t, q = tr.transform.translation, tr.transform.rotation
+            buf = self._dynamic.setdefault(child, (tr.header.frame_id.lstrip("/"), MountBuffer()))[1]
+            buf.add(convert.stamp_to_ns(tr.header.stamp), (q.x, q.y, q.z, q.w), (t.x, t.y, t.z))
+        if self._awaiting:
+            self._release()
+
+    def _chain_at(self, frame: str, stamp: int) -> Optional[tuple[np.ndarray, np.ndarray]]:
+        """`frame` in the base frame at `stamp` (static links and interpolated moving ones), or
+        None while a link is missing."""
+        rot, t, f = np.eye(3), np.zeros(3), frame
+        for _ in range(32):
+            if f == self.base_frame:
+                return rot, t
+            if f in self._static:
+                parent, r, tt = self._static[f]
+            elif f in self._dynamic:
+                parent, buf = self._dynamic[f]
+                at = buf.at(stamp)
+                if at is None:
+                    return None
+                r, tt = at
+            else:
+                return None
+            rot, t, f = r @ rot, r @ t + tt, parent
+        return None
+
+    def _on_rgbd(self, side: str, msg: Image) -> None:
+        """A colour ("left") or depth ("right") image: paired with the other stream's image
+        nearest in time (within depth_pair_tol_s) once the other stream has passed its stamp."""
+        self._last_input = time.monotonic()
+        self._images[side][convert.stamp_to_ns(msg.header.stamp)] = msg
+        rgb, depth = self._images["left"], self._images["right"]
+        for d in sorted(depth):
+            if not rgb:
+                break
+            stamps = np.fromiter(rgb, dtype=np.int64, count=len(rgb))
+            k = int(np.argmin(np.abs(stamps - d)))
+            if abs(int(stamps[k]) - d) > self.pair_tol_ns:
+                if stamps.max() > d + self.pair_tol_ns:  # none will come: this depth frame has no colour
+                    depth.pop(d)
+                continue
+            if stamps.max() < d and abs(int(stamps[k]) - d) > 0:
+                break  # a nearer colour image may still come
+            pair = _Pair(d, rgb.pop(int(stamps[k])), depth.pop(d))
+            with self.lock:
+                self.frames_received += 1
+                self._awaiting.append(pair)
+                while len(self._awaiting) > self.max_pending_pairs:
+                    self._awaiting.popleft()
+                    self.frames_skipped += 1
+        for store in (rgb, depth):
+            while len(store) > 2 * self.max_pending_pairs:
+                store.pop(min(store))
+        self._release()
+
+    def _ensure_camera(self) -> bool:
+        if self.camera is not None:
+            return True
+        if len(self._infos) < 2:
+            return False
+        rgb, depth = self._infos["left"], self._infos["right"]
+        link = self._static.get(depth.header.frame_id.lstrip("/"))
+        if link is None or link[0] != rgb.header.frame_id.lstrip("/"):
+            return False  # P_rgb = R P_depth + T: /tf_static rgb frame -> depth frame
+        try:
+            self.camera = DepthCamera(np.asarray(depth.k).reshape(3, 3), np.asarray(rgb.k).reshape(3, 3),
+                                      link[1], link[2], (int(rgb.width), int(rgb.height)))
+        except ValueError as e:
+            self.last_error = str(e)
+            self.get_logger().error(f"bad RGB-D calibration: {e}")
+            return False
+        return True
 
     def _on_map_info(self, info: MapMetaData) -> None:
         with self.lock:
@@ -281,7 +412,8 @@ class TextureNode(Node):
 
     def _release(self) -> None:
         """Move the pairs whose pose is known (interpolated) to the worker's queue."""
-        if not self._awaiting or not self._pose_t or not self._ensure_rig():
+        ready = self._ensure_camera() if self.mode == "depth" else self._ensure_rig()
+        if not self._awaiting or not self._pose_t or not ready:
             return
         t = np.fromiter(self._pose_t, dtype=np.int64, count=len(self._pose_t))
         with self.lock:
@@ -296,6 +428,19 @@ class TextureNode(Node):
                 j = int(np.searchsorted(t, pair.stamp_ns))
                 i = max(j - 1, 0)
                 j = min(j, len(t) - 1)
+                if self.mode == "depth":
+                    frame = pair.left.header.frame_id.lstrip("/")
+                    rgb_stamp = convert.stamp_to_ns(pair.left.header.stamp)
+                    latest = max(rgb_stamp, pair.stamp_ns)
+                    if any(not b.covers(latest) for _, b in self._dynamic.values()) and not self._replay_done:
+                        break  # the moving links have not reached the images' stamps yet
+                    pair.mount = self._chain_at(frame, rgb_stamp)
+                    depth_mount = self._chain_at(pair.right.header.frame_id.lstrip("/"), pair.stamp_ns)
+                    if pair.mount is None or depth_mount is None:
+                        break  # the camera's chain to the base is not known yet
+                    # the depth camera at its stamp in the RGB camera at its own (the head moves between)
+                    r_c, t_c = pair.mount
+                    pair.rgb_from_depth = (r_c.T @ depth_mount[0], r_c.T @ (depth_mount[1] - t_c))
                 pair.pose = interpolate_poses(t[[i, j]], np.array([self._pose_v[i], self._pose_v[j]]),
                                               np.array([pair.stamp_ns]))[0]
                 self._awaiting.popleft()
@@ -341,6 +486,8 @@ class TextureNode(Node):
                     self._last_activity = time.monotonic()
 
     def _process(self, pair: _Pair) -> None:
+        if self.mode == "depth":
+            return self._process_depth(pair)
         t0 = time.perf_counter()
         if self._texturer is None:
             assert self.rig is not None
@@ -354,6 +501,23 @@ class TextureNode(Node):
             self.texmap.add(res.xy_world, res.rgb)
             self._dirty = True
             self.frames_processed += 1
+            self.ms_total += 1e3 * (time.perf_counter() - t0)
+            self.last_stamp_ns = max(self.last_stamp_ns, pair.stamp_ns)
+
+    def _process_depth(self, pair: _Pair) -> None:
+        t0 = time.perf_counter()
+        if self._texturer is None:
+            assert self.camera is not None
+            self._texturer = DepthTexturer(self.camera, self.cfg, self.floor_height_m)
+        rgb = image_array(pair.left)
+        if pair.left.encoding.lower() == "bgr8":
+            rgb = rgb[..., ::-1]
+        res = self._texturer.process(depth_array(pair.right), rgb, pair.mount, pair.pose, pair.rgb_from_depth)
+        with self.lock:
+            self.texmap.add(res.xy_world, res.rgb)
+            self._dirty = True
+            self.frames_processed += 1
+            self.plane_fits += int(res.plane_fitted)
             self.ms_total += 1e3 * (time.perf_counter() - t0)
             self.last_stamp_ns = max(self.last_stamp_ns, pair.stamp_ns)
 
@@ -372,6 +536,8 @@ class TextureNode(Node):
                 "texture_cells": self.texmap.cell_count(),
                 "texture_memory_mb": round(self.texmap.memory_bytes / 2 ** 20, 1),
                 "final": self._final_sent,
+                "mode": self.mode,
+                **({"plane_fits": self.plane_fits} if self.mode == "depth" else {}),
             }
 
     def render(self) -> Optional[tuple[np.ndarray, np.ndarray, MapMetaData]]:

@@ -63,6 +63,13 @@ class CdrReader:
         self._need(n)
         self.pos += n
 
+    def string(self) -> str:
+        n = self.u32()
+        self._need(n)
+        s = bytes(self.raw[self.pos:self.pos + n]).rstrip(b"\0").decode("utf-8", "replace")
+        self.pos += n
+        return s
+
     def header(self) -> int:
         """std_msgs/Header -> stamp (ns); the frame_id is skipped."""
         stamp = self.stamp_ns()
@@ -80,6 +87,23 @@ class CdrReader:
         out = np.frombuffer(self.raw, dtype=np.dtype(dtype).newbyteorder(self.end), count=n, offset=self.pos)
         self.pos += size * n
         return out
+
+
+def tf_transforms(raw: bytes) -> list[tuple[int, str, str, tuple, tuple]]:
+    """tf2_msgs/TFMessage bytes -> [(stamp ns, parent, child, (x, y, z), (qx, qy, qz, qw))]
+    (the predictor takes a moving lidar mount from /tf at 100 Hz: no message objects)."""
+    r = CdrReader(raw, "tf2_msgs/TFMessage")
+    out = []
+    for _ in range(r.u32()):
+        stamp = r.stamp_ns()
+        parent = r.string()
+        child = r.string()
+        r._align(8)
+        r._need(56)
+        v = struct.unpack_from(r.end + "7d", raw, r.pos)
+        r.pos += 56
+        out.append((stamp, parent, child, v[:3], v[3:]))
+    return out
 
 
 def joint_state_positions(raw: bytes) -> tuple[int, np.ndarray]:

@@ -28,7 +28,7 @@ def ns_to_stamp(ns: int) -> Time:
 def particles_to_msg(poses: np.ndarray, log_weights: np.ndarray, *, stamp_ns: int,
                      frame_id: str, scan_index: int, update: bool,
                      odom_pose: np.ndarray, pending_delta: np.ndarray | None = None,
-                     pose: np.ndarray | None = None) -> ParticleArray:
+                     pose: np.ndarray | None = None, mount=None) -> ParticleArray:
     """(N,3) poses and (N,) log-weights -> ParticleArray (struct of arrays)."""
     msg = ParticleArray()
     msg.header.stamp = ns_to_stamp(stamp_ns)
@@ -39,6 +39,8 @@ def particles_to_msg(poses: np.ndarray, log_weights: np.ndarray, *, stamp_ns: in
     msg.pending_delta = (np.zeros(3) if pending_delta is None
                          else np.asarray(pending_delta, dtype=np.float64).reshape(3))
     msg.pose = np.zeros(3) if pose is None else np.asarray(pose, dtype=np.float64).reshape(3)
+    if mount is not None and len(mount):
+        msg.mount = array.array("d", np.ascontiguousarray(mount, dtype=np.float64).reshape(12).tobytes())
     p = np.ascontiguousarray(poses, dtype=np.float64)
     msg.x = array.array("d", p[:, 0].tobytes())
     msg.y = array.array("d", p[:, 1].tobytes())

@@ -21,11 +21,14 @@ INPUT_TYPES: dict[str, tuple[str, ...]] = {
     "imu": ("sensor_msgs/msg/Imu",),
     "stereo_left": ("sensor_msgs/msg/Image",),
     "stereo_right": ("sensor_msgs/msg/Image",),
+    "rgbd_rgb": ("sensor_msgs/msg/Image",),
+    "rgbd_depth": ("sensor_msgs/msg/Image",),
 }
 
 
 DEFAULT_INPUTS = {"scan": "/scan", "odom": "/odom", "encoders": "/encoders", "fog": "/fog", "imu": "/imu",
-                  "stereo_left": TEXTURE_INPUT, "stereo_right": "/stereo/right/image_raw"}
+                  "stereo_left": TEXTURE_INPUT, "stereo_right": "/stereo/right/image_raw",
+                  "rgbd_rgb": "/kinect/rgb/image_raw", "rgbd_depth": "/kinect/depth/image_raw"}
 
 
 @dataclass
@@ -46,7 +49,7 @@ class RunPlan:
     texture_timeout_s: float
     info: dict
     inputs: dict[str, str]
-    texture: bool  # the texture node runs (the bag has stereo images and it was not turned off)
+    texture: bool  # the texture node runs (the bag has stereo or RGB-D images and it was not turned off)
     node_names: tuple[str, ...]
     per_node: dict[str, dict[str, Any]]
     prof: Any  # profiles.Profile

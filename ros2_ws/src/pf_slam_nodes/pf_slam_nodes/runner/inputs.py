@@ -13,7 +13,8 @@ from .sample import BagSample, sample_bag
 
 
 ROLE_WORDS = {"scan": "lidar (LaserScan)", "odom": "odometry (Odometry)", "encoders": "wheel encoders (JointState)",
-              "fog": "gyro yaw (fog)", "imu": "gyro yaw (Imu angular_velocity.z)", "stereo_left": "stereo left (texture)", "stereo_right": "stereo right (texture)"}
+              "fog": "gyro yaw (fog)", "imu": "gyro yaw (Imu angular_velocity.z)", "stereo_left": "stereo left (texture)", "stereo_right": "stereo right (texture)",
+              "rgbd_rgb": "RGB-D colour (texture)", "rgbd_depth": "RGB-D depth (texture)"}
 
 
 def select_inputs(bag: str, info: dict, requested: dict[str, str] | None = None) -> dict[str, str]:
@@ -242,6 +243,11 @@ def detect_inputs(bag: str, info: dict, inputs: dict[str, str] | None = None,
         out["texture"] = {"left_topic": left, "right_topic": right,
                           "left_info_topic": left.rsplit("/", 1)[0] + "/camera_info",
                           "right_info_topic": right.rsplit("/", 1)[0] + "/camera_info"}
+    elif "rgbd_rgb" in inputs and "rgbd_depth" in inputs:  # an RGB-D camera: the depth mode
+        rgb, depth = inputs["rgbd_rgb"], inputs["rgbd_depth"]
+        out["texture"] = {"camera": "depth", "rgb_topic": rgb, "depth_topic": depth,
+                          "rgb_info_topic": rgb.rsplit("/", 1)[0] + "/camera_info",
+                          "depth_info_topic": depth.rsplit("/", 1)[0] + "/camera_info"}
     lm = mount if mount is not None else lidar_mount(bag, info, inputs, scan_frame=scan_frame)
     out["/**"] = dict(lm.params())
     if lm.base_from_tf:

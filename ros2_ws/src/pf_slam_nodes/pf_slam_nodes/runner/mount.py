@@ -15,7 +15,7 @@ from .sample import BagSample, sample_bag
 
 #: the parameters that describe the lidar's mount (planar: filter.sensor_offset_*; 3D: laser.extrinsic)
 MOUNT_PARAMS = ("filter.sensor_offset_x_m", "filter.sensor_offset_y_m", "filter.sensor_offset_yaw_rad",
-                "laser.extrinsic")
+                "laser.extrinsic", "laser.dynamic_frame")
 
 
 @dataclass
@@ -33,6 +33,7 @@ class LidarMount:
     chain: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     base_from_tf: bool = False  # base_frame is the child of odom in the bag's /tf
+    dynamic_frame: str = ""  # a moving mount: base -> dynamic_frame on /tf, rot/t the static rest
 
     @property
     def planar(self) -> bool:
@@ -51,6 +52,9 @@ class LidarMount:
         otherwise (laser.extrinsic; an upside-down lidar is a mirrored planar scan there)."""
         if self.source != "/tf_static":
             return {}
+        if self.dynamic_frame:
+            return {"laser.dynamic_frame": self.dynamic_frame,
+                    "laser.extrinsic": [float(v) for v in self.rot.reshape(-1)] + [float(v) for v in self.t]}
         if self.planar:
             return {"filter.sensor_offset_x_m": float(self.t[0]), "filter.sensor_offset_y_m": float(self.t[1]),
                     "filter.sensor_offset_yaw_rad": float(math.atan2(self.rot[1, 0], self.rot[0, 0]))}
@@ -60,6 +64,11 @@ class LidarMount:
         """'lidar mount from /tf_static: base_link -> laser: x 0.30 y 0.00 z 0.20, yaw 90.0°'."""
         roll, pitch, yaw = (math.degrees(v) for v in self.rpy)
         frames = " -> ".join(self.chain) if self.chain else f"{self.base_frame} -> {self.scan_frame}"
+        if self.dynamic_frame:
+            return (f"lidar on a moving mount: {frames}: {self.base_frame} -> {self.dynamic_frame} from /tf at each "
+                    f"scan's stamp, {self.dynamic_frame} -> {self.scan_frame} from /tf_static: x {self.t[0]:.2f} "
+                    f"y {self.t[1]:.2f} z {self.t[2]:.2f}, roll {roll:.1f}° pitch {pitch:.1f}° yaw {yaw:.1f}° "
+                    "(laser.dynamic_frame, laser.extrinsic)")
         angles = f"yaw {yaw:.1f}°" if self.planar else f"roll {roll:.1f}° pitch {pitch:.1f}° yaw {yaw:.1f}°"
         how = ("planar: filter.sensor_offset_*" if self.planar else
                "3D: laser.extrinsic, " + ("upside down, a mirrored scan" if self.rot[2, 2] < -1 + 1e-6
@@ -99,6 +108,17 @@ def _odom_child(sample: BagSample, topics: dict, odom_frame: str) -> str | None:
         for tr in deserialize(raw, msgtype).transforms:
             if tr.header.frame_id.lstrip("/") == odom_frame and tr.child_frame_id:
                 return tr.child_frame_id.lstrip("/")
+    return None
+
+
+def _dynamic_parent(sample: BagSample, topics: dict, frame: str) -> str | None:
+    """The parent of `frame` in the bag's /tf (the sample's first /tf messages): a moving mount."""
+    if "/tf" not in topics:
+        return None
+    for msgtype, _, raw in sample.of("/tf"):
+        for tr in deserialize(raw, msgtype).transforms:
+            if tr.child_frame_id.lstrip("/") == frame:
+                return tr.header.frame_id.lstrip("/")
     return None
 
 
@@ -172,6 +192,11 @@ def lidar_mount(bag: str | BagSample, info: dict, inputs: dict[str, str], scan_f
         r_b, t_b = _compose_up(tree, up_b)
         rot, t = r_b.T @ r_s, r_b.T @ (t_s - t_b)
         up = list(reversed(up_b + list(reversed(up_s))[1:]))  # shown as base -> .. -> ancestor -> .. -> scan
+    elif _dynamic_parent(sample, topics, up[-1]) == base:
+        # a moving mount (a lidar on a head): base -> up[-1] on /tf, the static rest from here
+        rot, t = _compose_up(tree, up)
+        m.dynamic_frame = up[-1]
+        up = up + [base]
     else:
         rot, t = _compose_up(tree, up)
         m.warnings.append(f"/tf_static: the scan's frame {scan_frame!r} hangs off {up[-1]!r}, not the robot's base "

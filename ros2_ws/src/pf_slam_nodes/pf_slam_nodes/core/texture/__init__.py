@@ -48,6 +48,10 @@ Texture images (:meth:`TextureMap.render`) use the ``OccupancyGrid`` layout: ``(
 observation are ``(0, 0, 0)``; observed cells are never pure black (clamped to ``(1, 1, 1)``),
 so black means "no colour". :func:`north_up_bgr` flips it for a PNG (north up).
 
+Depth mode (an RGB-D camera, THOR's Kinect v2): :mod:`.depth` (:class:`DepthTexturer`:
+depth -> 3-D -> RGB pixel -> base frame -> floor plane checked against the kinematic floor ->
+world), accumulated in the same :class:`TextureMap`.
+
 Modules (by stage): :mod:`.config` (:class:`TextureConfig`), :mod:`.rig` (:class:`StereoRig`),
 :mod:`.images` (stages 1-2: :func:`debayer`, :func:`grey`, :func:`detect_rectified`),
 :mod:`.texturer` (stages 1-6 per pair: :class:`StereoTexturer`; :func:`interpolate_poses`),
@@ -61,6 +65,7 @@ the PNG reader / writer are in :mod:`pf_slam_nodes.io.texture_files`.
 from __future__ import annotations
 
 from .config import BAYER_CODES, TextureConfig
+from .depth import DepthCamera, DepthFrameResult, DepthTexturer
 from .evaluation import (PairMeasurement, colour_error, measure_stereo_pair, road_region_mask,
                          visible_ground_mask)
 from .ground import Plane, fit_ground_plane
@@ -71,6 +76,9 @@ from .texturer import FrameResult, StereoTexturer, interpolate_poses
 
 __all__ = [
     'BAYER_CODES',
+    'DepthCamera',
+    'DepthFrameResult',
+    'DepthTexturer',
     'FrameResult',
     'PairMeasurement',
     'Plane',

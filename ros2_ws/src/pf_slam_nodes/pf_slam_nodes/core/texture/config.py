@@ -127,6 +127,11 @@ class TextureConfig(_ConfigBase):
         Tiles allocated at most (``16 * tile_cells**2`` bytes each).
     seed : int
         RANSAC random seed.
+    depth_stride : int
+        Depth mode (an RGB-D camera, :mod:`.depth`): every ``depth_stride``-th depth pixel of
+        each row and column is used (4: 128 x 106 of the Kinect v2's 512 x 424).
+    depth_min_m, depth_max_m : float
+        Depth mode: valid depth (m); the Kinect v2 measures 0.4 .. 4.5 m.
     """
 
     rectify: str = 'auto'
@@ -162,6 +167,9 @@ class TextureConfig(_ConfigBase):
     tile_cells: int = 128
     max_tiles: int = 1024
     seed: int = 0
+    depth_stride: int = 4
+    depth_min_m: float = 0.4
+    depth_max_m: float = 4.5
 
     def __post_init__(self) -> None:
         if self.rectify not in _RECTIFY:
@@ -219,3 +227,8 @@ class TextureConfig(_ConfigBase):
         _check_int('max_tiles', self.max_tiles, 1)
         _check_int('seed', self.seed, 0)
         _check_finite('cell_m', self.cell_m)
+        _check_int('depth_stride', self.depth_stride, 1)
+        _check_nonneg('depth_min_m', self.depth_min_m)
+        _check_pos('depth_max_m', self.depth_max_m)
+        if self.depth_max_m <= self.depth_min_m:
+            raise ValueError(f'depth_max_m must be > depth_min_m, got {self.depth_max_m!r}')
