@@ -300,14 +300,37 @@ def warn_undeclared(node: Node) -> list[str]:
     return names
 
 
-def run_node(factory: Callable[..., Node], args: list[str] | None = None) -> int:
-    """`main()` of a node console script: init, spin until Ctrl-C / SIGTERM / shutdown, clean up."""
+def follow_clock(node, log: Callable[[str], None] | None = None) -> None:
+    """Switch `node` to the simulated clock (use_sim_time) at the first /clock message, unless
+    use_sim_time was set for it: `use_sim_time` follows /clock, as a user of a bag player expects."""
+    from rclpy.parameter import Parameter
+    from rosgraph_msgs.msg import Clock
+
+    from ..ros import qos, topics
+    if "use_sim_time" in getattr(node, "_parameter_overrides", {}):
+        return
+    holder: list = []
+
+    def on_clock(_msg) -> None:
+        if not holder:
+            return
+        node.destroy_subscription(holder.pop())
+        node.set_parameters([Parameter("use_sim_time", Parameter.Type.BOOL, True)])
+        (log or node.get_logger().info)(f"{node.get_name()}: /clock is published: use_sim_time true")
+    holder.append(node.create_subscription(Clock, topics.CLOCK, on_clock, qos.outputs(10)))
+
+
+def run_node(factory: Callable[..., Node], args: list[str] | None = None, clock_follower: bool = True) -> int:
+    """`main()` of a node console script: init, spin until Ctrl-C / SIGTERM / shutdown, clean up.
+    `clock_follower`: use_sim_time follows /clock when not set (not for the clock's own source)."""
     die_with_parent()
     rclpy.init(args=args)
     node = None
     try:
         node = factory()
         warn_undeclared(node)
+        if clock_follower:
+            follow_clock(node)  # use_sim_time unset (a launch file's use_sim_time:=auto): it follows /clock
         ex = SingleThreadedExecutor()
         ex.add_node(node)
         ex.spin()

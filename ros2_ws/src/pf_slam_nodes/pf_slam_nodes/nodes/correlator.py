@@ -4,7 +4,8 @@ Subscribes: pf_slam/scan_corrected (LaserScan: the predictor forwards the bytes 
 scans it sends to be corrected; the n-th belongs to the n-th set with update=true),
 particles/predicted (ParticleArray: one per correction, plus the pass-through end-of-run set),
 pf_slam/grid (after each integration, the mapper's patch: occupancy of the cells that scan
-touched). Publishes: particles/updated (one per predicted set, carrying the
+touched; a patch with resolution 0 is the mapper's reset: the field is dropped and starts again,
+as at the first scan, with the next patch). Publishes: particles/updated (one per predicted set, carrying the
 pose estimate: the best particle or the weighted mean, filter.pose_estimate).
 
 A corrected set (update=true) is scored against the map that holds every scan corrected before
@@ -58,6 +59,9 @@ class Correlator(Node):
         self._drain()
 
     def _on_grid(self, msg: OccupancyGrid) -> None:
+        if msg.info.resolution == 0.0:  # the mapper's reset: a new map from its next patch on
+            self.stage.field = self.stage.known = None
+            return
         occ, res, origin = convert.msg_to_grid(msg)
         self.stage.apply_patch(MapPatch(occ, res, np.asarray(origin)))
         self.grids_received += 1

@@ -11,6 +11,14 @@ odom_T_base^-1, at every correction: between corrections map -> odom does not ch
 poses are then the corrected pose composed with the odometry increment), /tf_static (base_frame ->
 the scan's frame from filter.sensor_offset_* / laser.extrinsic, once, if publish_sensor_tf).
 /map holds map_server trinary values: 100 / 0 / -1 by occupied_thresh / free_thresh.
+
+It also keeps every scan's pose (pose, from the predictor) for the trajectory, and serves (live use,
+no end of bag needed): pf_slam/save_map (pf_slam_interfaces/SaveMap: map.pgm + map.yaml in map_server
+format and trajectory.tum into a folder), pf_slam/pause_mapping (std_srvs/SetBool: true freezes the
+map, the filter goes on localising against it; false resumes), pf_slam/reset (std_srvs/Trigger: a new,
+empty map from the next corrected scan on, at the filter's pose then; the trajectory kept so far is
+dropped). A reset reaches the correlator in order on pf_slam/grid (a patch with resolution 0 just
+before the new map's first patch), so it drops its likelihood field at the same scan.
 """
 from __future__ import annotations
 
@@ -20,14 +28,16 @@ import numpy as np
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import MapMetaData, OccupancyGrid, Path
 from pf_slam_interfaces.msg import ParticleArray, ReplayStatus
+from pf_slam_interfaces.srv import SaveMap
 from rclpy.node import Node
 from sensor_msgs.msg import LaserScan
+from std_srvs.srv import SetBool, Trigger
 from tf2_msgs.msg import TFMessage
 
 from ..core.geometry import compose, matrix_to_quat, relative_pose
 from ..core.stages import MappingStage
 from ..io.mapfile import trinary
-from ..ros import convert, qos, topics
+from ..ros import cdr, convert, qos, topics
 from .common import (ScanQueue, announce_when_matched, declare_config, param, run_node, scan_fields,
                      status_publisher)
 
@@ -63,6 +73,15 @@ class Mapper(Node):
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
         self.create_timer(period, self.publish_map)
+        self.paused = False
+        self.reset_pending = False
+        self.pose_stamps: list[int] = []  # every scan's pose (pose): the trajectory save_map writes
+        self.poses: list[np.ndarray] = []
+        self.trajectory_from = -(1 << 62)
+        self.create_subscription(PoseStamped, topics.POSE, self._on_pose, qos.pipeline(), raw=True)
+        self.create_service(SaveMap, topics.SAVE_MAP, self._srv_save_map)
+        self.create_service(SetBool, topics.PAUSE_MAPPING, self._srv_pause)
+        self.create_service(Trigger, topics.RESET, self._srv_reset)
         status_publisher(self, lambda: {"faults": {"scans_lost_mapper": self.scans.lost,
                                                    "map_beyond_bound": self._beyond_bound()}})
         self._warned_bound = False
@@ -70,6 +89,72 @@ class Mapper(Node):
     def _beyond_bound(self) -> int:
         """Scans with cells the grid could not grow to (grid.max_cells)."""
         return 0 if self.stage.grid is None else int(self.stage.grid.scans_beyond_bound)
+
+    def _on_pose(self, raw: bytes) -> None:
+        stamp, pose = cdr.pose_stamped_xy_yaw(raw)
+        if stamp < self.trajectory_from:  # a scan before the last reset
+            return
+        self.pose_stamps.append(stamp)
+        self.poses.append(pose)
+
+    # ------------------------------------------------------------------ services
+    def _srv_save_map(self, req: SaveMap.Request, res: SaveMap.Response) -> SaveMap.Response:
+        from ..io.mapfile import write_map
+        from ..io.trajectory import write_tum
+        res.success = False
+        if not req.directory:
+            res.message = "save_map: 'directory' is empty"
+        elif not self.stage.ready:
+            res.message = "save_map: no map yet (no scan has been corrected)"
+        else:
+            import os
+            from pathlib import Path
+            out = Path(os.path.expanduser(req.directory)).resolve()
+            try:
+                out.mkdir(parents=True, exist_ok=True)
+                occ, resolution, origin = self.stage.map_occupancy()
+                yaml_path = write_map(out, occ, resolution, origin, occupied_thresh=self.thresholds[0],
+                                      free_thresh=self.thresholds[1])
+                tum = out / "trajectory.tum"
+                write_tum(tum, np.array(self.pose_stamps, dtype=np.int64) / 1e9, np.array(self.poses).reshape(-1, 3))
+            except OSError as e:
+                res.message = f"save_map: cannot write into {out}: {e}"
+            else:
+                res.success = True
+                res.files = [str(yaml_path.with_suffix(".pgm")), str(yaml_path), str(tum)]
+                res.message = (f"map {occ.shape[1]} x {occ.shape[0]} cells ({resolution} m), "
+                               f"{len(self.poses)} poses saved in {out}")
+        (self.get_logger().info if res.success else self.get_logger().error)(res.message)
+        return res
+
+    def _srv_pause(self, req: SetBool.Request, res: SetBool.Response) -> SetBool.Response:
+        was, self.paused = self.paused, bool(req.data)
+        if was and not self.paused and not self.stage.ready and self.integrated:
+            self.reset_pending = True  # paused since before the first map: start it as after a reset
+        res.success = True
+        res.message = ("mapping paused: the map is frozen, the filter localises against it" if self.paused
+                       else "mapping resumed") + ("" if was != self.paused else " (no change)")
+        self.get_logger().info(res.message)
+        return res
+
+    def _srv_reset(self, _req: Trigger.Request, res: Trigger.Response) -> Trigger.Response:
+        self.reset_pending = True
+        res.success = True
+        res.message = "map reset: a new map starts at the next corrected scan; trajectory cleared"
+        self.get_logger().info(res.message)
+        return res
+
+    def _reset_map(self, stamp: int) -> None:
+        """A new, empty map (built from the next integrated scan on); the correlator is told first."""
+        self.reset_pending = False
+        self.stage.grid = self.stage._occ = self.stage.pose = None
+        self._warned_bound = False
+        self.path.clear()
+        keep = [i for i, t in enumerate(self.pose_stamps) if t >= stamp]  # from this scan on
+        self.pose_stamps, self.poses = [self.pose_stamps[i] for i in keep], [self.poses[i] for i in keep]
+        self.trajectory_from = stamp
+        marker = convert.grid_to_msg(np.zeros((0, 0), np.int8), 0.0, (0.0, 0.0), stamp, self.map_frame)
+        self.pub_grid.publish(marker)  # resolution 0: "reset" (ordered before the new map's first patch)
 
     def _on_scan(self, raw: bytes) -> None:
         self.scans.append(raw)
@@ -99,16 +184,28 @@ class Mapper(Node):
                                            "than the graph): not mapped", throttle_duration_sec=5.0)
                 elif self.pub_tf_static is not None:
                     self._publish_sensor_tf(scan.header.frame_id, stamp)
-                patch = self.stage.integrate(pose, *scan_fields(scan))
-                g = self.stage.grid
-                if g.scans_beyond_bound and not self._warned_bound:
+                if self.reset_pending and not self.paused:
+                    self._reset_map(stamp)
+                if self.paused:  # the map is frozen: an empty patch keeps the correlator in step
+                    g = self.stage.grid
+                    self.pub_grid.publish(convert.grid_to_msg(
+                        np.zeros((0, 0), np.int8), g.resolution if g is not None else self.stage.grid_cfg.resolution_m,
+                        g.origin if g is not None else (0.0, 0.0), stamp, self.map_frame))
+                    patch = None
+                else:
+                    patch = self.stage.integrate(pose, *scan_fields(scan))
+                    g = self.stage.grid
+                if patch is None:
+                    pass
+                elif g.scans_beyond_bound and not self._warned_bound:
                     self._warned_bound = True
                     self.get_logger().warn(
                         f"scan {pa.scan_index} reaches beyond what grid.max_cells ({g.cfg.max_cells}) lets the "
                         f"map grow to ({g.height} x {g.width} cells): those cells are not mapped (counted: "
                         "faults map_beyond_bound)")
-                self.pub_grid.publish(convert.grid_to_msg(patch.occupancy, patch.resolution,
-                                                          patch.origin, stamp, self.map_frame))
+                if patch is not None:
+                    self.pub_grid.publish(convert.grid_to_msg(patch.occupancy, patch.resolution,
+                                                              patch.origin, stamp, self.map_frame))
             map_to_odom = compose(pose, relative_pose(np.asarray(pa.odom_pose), np.zeros(3)))
             self.pub_tf.publish(TFMessage(transforms=[
                 convert.transform(self.map_frame, self.odom_frame, map_to_odom, stamp)]))

@@ -23,3 +23,8 @@ REPLAY_STATUS = "pf_slam/replay_status"  # bag_replay -> all: end of bag
 REPLAY_STALL = "pf_slam/replay_stall"  # bag_replay -> predictor: stopped at max_in_flight, counts so far
 READY = "pf_slam/ready"  # each stage, once its outputs are matched: the replay may start
 STATUS = "pf_slam/status"  # nodes -> recorder: JSON (fault counters), latched
+
+# the mapper's services (live use)
+SAVE_MAP = "pf_slam/save_map"  # pf_slam_interfaces/SaveMap: map.pgm + map.yaml + trajectory.tum into a folder
+PAUSE_MAPPING = "pf_slam/pause_mapping"  # std_srvs/SetBool: true freezes the map, false resumes
+RESET = "pf_slam/reset"  # std_srvs/Trigger: a new map from the next corrected scan
