@@ -124,7 +124,10 @@ class Mapper(Node):
                 res.files = [str(yaml_path.with_suffix(".pgm")), str(yaml_path), str(tum)]
                 res.message = (f"map {occ.shape[1]} x {occ.shape[0]} cells ({resolution} m), "
                                f"{len(self.poses)} poses saved in {out}")
-        (self.get_logger().info if res.success else self.get_logger().error)(res.message)
+        if res.success:
+            self.get_logger().info(res.message)
+        else:
+            self.get_logger().error(res.message)
         return res
 
     def _srv_pause(self, req: SetBool.Request, res: SetBool.Response) -> SetBool.Response:
