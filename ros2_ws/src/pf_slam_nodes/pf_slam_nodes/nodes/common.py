@@ -49,7 +49,8 @@ PARAM_DOCS: dict[str, str] = {
     "map_frame": "REP-105 map frame: /map, /path, /pose and particle sets are in it",
     "odom_frame": "REP-105 odom frame: parent of base_frame (dead reckoning), child of map_frame",
     "base_frame": "REP-105 robot frame (base_link): child of odom_frame, parent of the sensor frames",
-    "odometry_source": "'odom' (nav_msgs/Odometry on odom) or 'encoders' (JointState wheel angles on encoders)",
+    "odometry_source": "'odom' (nav_msgs/Odometry on odom), 'encoders' (JointState wheel angles on encoders) or 'tf' "
+                       "(the odom_frame -> base_frame transform on /tf, as a robot's base controller publishes it)",
     "odom_sync": "'exact': odometry stamped like each scan (same log line); 'interpolate': asynchronous odometry",
     "fog_format": "yaw from a gyro instead of the wheels: 'none', 'batch' (FogBatch on fog), 'vector3' "
                   "(Vector3Stamped on fog) or 'imu' (sensor_msgs/Imu on imu, mounted level: angular_velocity.z)",
@@ -58,7 +59,8 @@ PARAM_DOCS: dict[str, str] = {
                        "the replay's pf_slam/replay_stall decides instead, deterministically)",
     "stamp_offset_s": "odometry stamps this far (s) ahead of or behind the scan stamps are reported (odom_stamp_offset)",
     "time_gap_s": "scan stamps stepping forward by more than this are counted as a time gap (s)",
-    "publish_odom_tf": "publish odom -> base_frame on /tf at every scan (off when the bag carries its own /tf)",
+    "publish_odom_tf": "publish odom -> base_frame on /tf at every scan (off when the bag carries its own /tf); never "
+                       "with odometry_source tf, and stopped once another node is seen publishing that transform",
     "publish_sensor_tf": "publish base_frame -> the scan's frame on /tf_static from filter.sensor_offset_* / "
                          "laser.extrinsic (off when the bag's /tf_static has it)",
     "expected_observers": "extra subscribers (e.g. pf-slam run's recorder) that must be matched before the replay starts",
