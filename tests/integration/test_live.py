@@ -73,8 +73,11 @@ def _start_live(out: Path, *extra: str) -> Proc:
     return live
 
 
-def _play(bag: Path, rate: str) -> str:
-    r = subprocess.run(PF_SLAM + ["play", str(bag), "--rate", rate, "--clock", "--delay", "1"],
+def _play(bag: Path, rate: str, wait_for: str = "/odom") -> str:
+    # as `ros2 bag play --delay`: the player's writers must have found the graph's readers (discovery
+    # between two processes) or the first messages are not delivered; here it waits for the readers
+    r = subprocess.run(PF_SLAM + ["play", str(bag), "--rate", rate, "--clock", "--delay", "0.5",
+                                  "--wait-for", "/scan", wait_for],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr + r.stdout
     return r.stdout
@@ -174,7 +177,8 @@ def test_pause_resume_reset_services(reference, tmp_path, ros_context):
     """pause freezes the map while the poses go on; resume maps again; reset starts a new, small map
     and trajectory from the next scan, in the same map frame (still close to ground truth)."""
     live = _start_live(tmp_path / "out")
-    player = Proc(PF_SLAM + ["play", str(SAMPLE), "--rate", "2", "--clock", "--delay", "1"])
+    player = Proc(PF_SLAM + ["play", str(SAMPLE), "--rate", "2", "--clock", "--delay", "0.5",
+                             "--wait-for", "/scan", "/odom"])
     try:
         c = Client(ros_context)
         _, SetBool, Trigger = c.types
@@ -251,7 +255,7 @@ def test_odometry_from_tf_and_no_odom_tf_fight(reference, tmp_path, ros_context)
     live = _start_live(tmp_path / "out", "--odometry", "tf")
     try:
         client = Client(ros_context)
-        _play(bag, "4")
+        _play(bag, "4", wait_for="/tf")
         traj = _saved_until(client, tmp_path / "saved", 600)
         client.close()
     finally:
@@ -266,3 +270,12 @@ def test_odometry_from_tf_and_no_odom_tf_fight(reference, tmp_path, ros_context)
         assert live.wait_for("another node publishes odom -> base_link on /tf", 20), live.text()
     finally:
         assert live.stop() == 0, live.text()
+
+
+def test_stopped_before_any_scan_says_so(tmp_path, ros_domain):
+    """Ctrl-C before any scan: nothing to save, one line saying why, exit code 1, no traceback."""
+    live = _start_live(tmp_path / "out")
+    rc = live.stop()
+    assert rc == 1, live.text()
+    assert "no map yet" in live.text() and "Traceback" not in live.text()
+    assert not (tmp_path / "out" / "map.yaml").exists()

@@ -162,6 +162,8 @@ def _add_live_parsers(sub) -> None:
     pl.add_argument("--clock", action="store_true", help="publish /clock from the bag's record times")
     pl.add_argument("--delay", type=float, default=0.0, metavar="S", help="wait S s before the first message")
     pl.add_argument("--topics", nargs="*", help="only these topics (default: all)")
+    pl.add_argument("--wait-for", nargs="*", metavar="TOPIC",
+                    help="first wait (up to 30 s) until each of these topics has a subscriber (discovery)")
 
 
 def main(argv: list[str] | None = None) -> int:

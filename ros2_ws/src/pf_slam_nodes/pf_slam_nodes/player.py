@@ -18,7 +18,8 @@ from .ros import cdr, qos, topics
 
 
 def play(bag: str, rate: str = "1", clock: bool = False, delay_s: float = 0.0, clock_period_s: float = 0.025,
-         topic_filter: list[str] | None = None, context=None, log: Callable[[str], None] = print) -> dict[str, int]:
+         topic_filter: list[str] | None = None, context=None, log: Callable[[str], None] = print,
+         wait_for: list[str] | None = None, wait_timeout_s: float = 30.0) -> dict[str, int]:
     """Publish the bag (see the module); returns the messages published per topic.
 
     `rate`: '1' real time, 'N' N times faster, 'max' as fast as possible. `delay_s`: wait this long
@@ -26,13 +27,15 @@ def play(bag: str, rate: str = "1", clock: bool = False, delay_s: float = 0.0, c
     that match late miss what was published before). `clock_period_s`: with `clock`, /clock goes
     out at least this often in bag time (and with every message whose stamp moved past it).
     `context`: an rclpy Context already initialised (default: a new one on the environment's domain).
+    `wait_for`: before the first message (and the delay), wait until each of these topics has a
+    subscriber matched (discovery only: at most `wait_timeout_s`, then it plays anyway, saying so).
     """
     import rclpy
     from rosgraph_msgs.msg import Clock
     factor = parse_rate(rate)
     info = bag_info(bag)
     wanted = set(topic_filter) if topic_filter else set(info["topics"])
-    unknown = wanted - set(info["topics"])
+    unknown = (wanted | set(wait_for or ())) - set(info["topics"])
     if unknown:
         raise ValueError(f"{bag}: no topic {', '.join(sorted(unknown))} (it has {', '.join(sorted(info['topics']))})")
     own = context is None
@@ -46,6 +49,12 @@ def play(bag: str, rate: str = "1", clock: bool = False, delay_s: float = 0.0, c
                                          qos.latched(10) if t in LATCHED_TOPICS else qos.pipeline(1000))
                 for t in published}
         pub_clock = node.create_publisher(Clock, topics.CLOCK, qos.outputs(10)) if clock else None
+        deadline = time.monotonic() + wait_timeout_s
+        for t in wait_for or ():
+            while pubs[t].get_subscription_count() < 1 and time.monotonic() < deadline:
+                time.sleep(0.02)
+            if pubs[t].get_subscription_count() < 1:
+                log(f"[pf-slam] warning: no subscriber on {t} after {wait_timeout_s:g} s: playing anyway")
         time.sleep(max(delay_s, 0.0))
         log(f"[pf-slam] playing {bag}: {sum(info['topics'][t][1] for t in published)} messages on "
             f"{len(published)} topics at rate {rate}{', with /clock' if clock else ''}")
@@ -81,5 +90,6 @@ def play(bag: str, rate: str = "1", clock: bool = False, delay_s: float = 0.0, c
 
 
 def play_cli(args) -> int:
-    play(args.bag, rate=args.rate, clock=args.clock, delay_s=args.delay, topic_filter=args.topics or None)
+    play(args.bag, rate=args.rate, clock=args.clock, delay_s=args.delay, topic_filter=args.topics or None,
+         wait_for=args.wait_for)
     return 0
