@@ -67,8 +67,8 @@ class Proc:
         return rc
 
 
-def _start_live(out: Path, *extra: str) -> Proc:
-    live = Proc(PF_SLAM + ["live", "--params", str(SIM), "--out", str(out), *extra])
+def _start_live(out: Path, *extra: str, params: Path = SIM) -> Proc:
+    live = Proc(PF_SLAM + ["live", "--params", str(params), "--out", str(out), *extra])
     assert live.wait_for("running; save the map", 60), live.text()
     return live
 
@@ -171,6 +171,26 @@ def test_live_graph_fed_by_separate_player(rate, reference, tmp_path, ros_contex
     assert len(_poses(tmp_path / "out" / "trajectory.tum")) == 600
     # nothing lost on the way, nothing waited on: the same trajectory as the paced replay
     assert np.abs(traj[:, 1:3] - ref_poses[:, 1:3]).max() < 0.05
+
+
+def test_live_one_process_per_node(reference, tmp_path, ros_context):
+    """--processes multi, the mount in the parameters (so the node processes start before the first
+    scan): the same 600 poses as `pf-slam run`, saved on Ctrl-C through the mapper's service."""
+    params = tmp_path / "params.yaml"
+    params.write_text(SIM.read_text().replace("      seed: 0\n", "      seed: 0\n      sensor_offset_x_m: 0.0\n"))
+    assert "sensor_offset_x_m" in params.read_text()
+    live = _start_live(tmp_path / "out", "--processes", "multi", params=params)
+    try:
+        client = Client(ros_context)  # the mapper's services: its process is up
+        _play(SAMPLE, "4")
+        traj = _saved_until(client, tmp_path / "saved", 600)
+        client.close()
+    finally:
+        rc = live.stop()
+    assert rc == 0, live.text()
+    assert len(traj) == 600 and len(_poses(tmp_path / "out" / "trajectory.tum")) == 600
+    assert np.abs(traj[:, 1:3] - reference[1][:, 1:3]).max() < 0.05
+    assert (tmp_path / "out" / "logs" / "mapper.log").is_file()
 
 
 def test_pause_resume_reset_services(reference, tmp_path, ros_context):

@@ -278,8 +278,8 @@ def live(params_file: str | None = None, profile: str | None = None, out: str | 
                 ex.spin_until_future_complete(done, timeout_sec=1.0)
             if done.result() is not None:
                 raise RunError(done.result())
-        if out:
-            saved = save_map_via_service(ctx, ex, out, log)
+            if out:  # still under the signal handlers: a second Ctrl-C does not cut the save short
+                saved = save_map_via_service(ctx, ex, out, log)
     finally:
         _stop_children(children)
         ex.shutdown()
