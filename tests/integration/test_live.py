@@ -208,6 +208,9 @@ def test_pause_resume_reset_services(reference, tmp_path, ros_context):
             if res.success and len(_poses(tmp_path / "a" / "trajectory.tum")) > 150:
                 break
             time.sleep(0.5)
+        (tmp_path / "a_file").write_text("")
+        bad = c.save_to(tmp_path / "a_file" / "map")  # a folder under a file: cannot be written
+        assert not bad.success and "cannot write into" in bad.message
         r = c.call(c.pause, SetBool.Request(data=True))
         assert r.success and "paused" in r.message
         time.sleep(1.0)  # what was in flight is integrated
