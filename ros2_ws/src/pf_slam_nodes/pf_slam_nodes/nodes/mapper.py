@@ -42,6 +42,34 @@ from .common import (ScanQueue, announce_when_matched, declare_config, param, ru
                      status_publisher)
 
 
+class PoseLog:
+    """Stamped (x, y, yaw) poses in growing arrays: 32 bytes a pose, for live runs of hours."""
+
+    def __init__(self) -> None:
+        self._t = np.empty(1024, np.int64)
+        self._p = np.empty((1024, 3))
+        self._n = 0
+
+    def __len__(self) -> int:
+        return self._n
+
+    def append(self, stamp_ns: int, pose) -> None:
+        if self._n == len(self._t):
+            self._t = np.concatenate([self._t, np.empty_like(self._t)])
+            self._p = np.concatenate([self._p, np.empty_like(self._p)])
+        self._t[self._n], self._p[self._n] = stamp_ns, pose
+        self._n += 1
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        return self._t[:self._n].copy(), self._p[:self._n].copy()
+
+    def drop_before(self, stamp_ns: int) -> None:
+        keep = self._t[:self._n] >= stamp_ns
+        k = int(keep.sum())
+        self._t[:k], self._p[:k] = self._t[:self._n][keep], self._p[:self._n][keep]
+        self._n = k
+
+
 class Mapper(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("mapper", **kwargs)
@@ -75,8 +103,7 @@ class Mapper(Node):
         self.create_timer(period, self.publish_map)
         self.paused = False
         self.reset_pending = False
-        self.pose_stamps: list[int] = []  # every scan's pose (pose): the trajectory save_map writes
-        self.poses: list[np.ndarray] = []
+        self.trajectory = PoseLog()  # every scan's pose (pose): the trajectory save_map writes
         self.trajectory_from = -(1 << 62)
         self.create_subscription(PoseStamped, topics.POSE, self._on_pose, qos.pipeline(), raw=True)
         self.create_service(SaveMap, topics.SAVE_MAP, self._srv_save_map)
@@ -94,8 +121,7 @@ class Mapper(Node):
         stamp, pose = cdr.pose_stamped_xy_yaw(raw)
         if stamp < self.trajectory_from:  # a scan before the last reset
             return
-        self.pose_stamps.append(stamp)
-        self.poses.append(pose)
+        self.trajectory.append(stamp, pose)
 
     # ------------------------------------------------------------------ services
     def _srv_save_map(self, req: SaveMap.Request, res: SaveMap.Response) -> SaveMap.Response:
@@ -116,14 +142,15 @@ class Mapper(Node):
                 yaml_path = write_map(out, occ, resolution, origin, occupied_thresh=self.thresholds[0],
                                       free_thresh=self.thresholds[1])
                 tum = out / "trajectory.tum"
-                write_tum(tum, np.array(self.pose_stamps, dtype=np.int64) / 1e9, np.array(self.poses).reshape(-1, 3))
+                stamps, poses = self.trajectory.arrays()
+                write_tum(tum, stamps / 1e9, poses)
             except OSError as e:
                 res.message = f"save_map: cannot write into {out}: {e}"
             else:
                 res.success = True
                 res.files = [str(yaml_path.with_suffix(".pgm")), str(yaml_path), str(tum)]
                 res.message = (f"map {occ.shape[1]} x {occ.shape[0]} cells ({resolution} m), "
-                               f"{len(self.poses)} poses saved in {out}")
+                               f"{len(self.trajectory)} poses saved in {out}")
         if res.success:
             self.get_logger().info(res.message)
         else:
@@ -153,8 +180,7 @@ class Mapper(Node):
         self.stage.grid = self.stage._occ = self.stage.pose = None
         self._warned_bound = False
         self.path.clear()
-        keep = [i for i, t in enumerate(self.pose_stamps) if t >= stamp]  # from this scan on
-        self.pose_stamps, self.poses = [self.pose_stamps[i] for i in keep], [self.poses[i] for i in keep]
+        self.trajectory.drop_before(stamp)  # kept from this scan on
         self.trajectory_from = stamp
         marker = convert.grid_to_msg(np.zeros((0, 0), np.int8), 0.0, (0.0, 0.0), stamp, self.map_frame)
         self.pub_grid.publish(marker)  # resolution 0: "reset" (ordered before the new map's first patch)

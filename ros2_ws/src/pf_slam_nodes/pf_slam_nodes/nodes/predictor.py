@@ -80,10 +80,11 @@ class Predictor(Node):
         self.pose_cdr = cdr.PoseStampedWriter(self.map_frame)  # one pose per scan: published as bytes
         self._init_odom_tf()
         sub_scan = self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline(), raw=True)
-        # the correlator (+ the mapper for the scans); bag_replay (paces on pose) + observers
+        # the correlator (+ the mapper for the scans); bag_replay (paces on pose), the mapper (the
+        # trajectory save_map writes) + observers
         # that must see every pose; the scans' source (the replay starts once this is matched)
         announce_when_matched(self, [(self.pub, 1), (self.pub_scan, 2),
-                                     (self.pub_pose, 1 + param(self, "expected_observers", 0)), (sub_scan, 1)])
+                                     (self.pub_pose, 2 + param(self, "expected_observers", 0)), (sub_scan, 1)])
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
         self.create_subscription(ReplayStatus, topics.REPLAY_STALL, self._on_stall, qos.pipeline())
