@@ -54,12 +54,14 @@ def test_launch_plan_live_and_bag():
     assert list(live) == ["predictor", "correlator", "mapper"]
     assert all("use_sim_time" not in p for p in live.values())
     assert live["mapper"]["publish_sensor_tf"] is False
+    assert all(live[n]["mount_from_tf"] is True for n in ("predictor", "correlator", "mapper"))
     bag = graph_nodes(bag="/data/bag", use_sim_time="true", texture="true", odometry_source="tf",
                       scan_topic="/front/scan")
     assert list(bag) == ["bag_replay", "predictor", "correlator", "mapper", "texture"]
     assert bag["bag_replay"] == {"bag": "/data/bag", "scan_topic": "/front/scan"}
     assert all(bag[n]["use_sim_time"] is True for n in ("predictor", "correlator", "mapper", "texture"))
     assert bag["predictor"]["odometry_source"] == "tf" and bag["mapper"]["publish_sensor_tf"] is True
+    assert "mount_from_tf" not in bag["mapper"]  # pf-slam run's way: the bag's /tf_static, read before
     assert graph_nodes(use_sim_time="false")["mapper"]["use_sim_time"] is False
     assert graph_nodes(publish_sensor_tf="true")["mapper"]["publish_sensor_tf"] is True
     for bad in (dict(use_sim_time="yes"), dict(odometry_source="gps"), dict(texture="maybe")):

@@ -24,7 +24,8 @@ def graph_nodes(bag: str = "", use_sim_time: str = "auto", texture: str = "false
     """Node name -> the parameters the launch file adds for it (on top of the parameter files), in
     start order. use_sim_time auto: not set, so each node switches to /clock at its first message
     (nodes.common.follow_clock); bag_replay, the clock's source, never gets it.
-    publish_sensor_tf auto: only with a bag (a robot's TF tree has its lidar's mount already)."""
+    publish_sensor_tf auto: only with a bag (a robot's TF tree has its lidar's mount already).
+    Without a bag the nodes take the lidar mount from /tf_static + /tf (mount_from_tf)."""
     sim = _bool_arg("use_sim_time", use_sim_time)
     sensor_tf = _bool_arg("publish_sensor_tf", publish_sensor_tf)
     if odometry_source not in ODOMETRY_SOURCES:
@@ -41,4 +42,7 @@ def graph_nodes(bag: str = "", use_sim_time: str = "auto", texture: str = "false
     if odometry_source:
         out["predictor"]["odometry_source"] = odometry_source
     out["mapper"]["publish_sensor_tf"] = sensor_tf == "true" or (sensor_tf == "auto" and bool(bag))
+    if not bag:  # live: the lidar mount from the robot's /tf_static + /tf (nodes/mount_tf.py)
+        for n in SLAM_NODES:
+            out[n]["mount_from_tf"] = True
     return out

@@ -63,6 +63,10 @@ PARAM_DOCS: dict[str, str] = {
                        "with odometry_source tf, and stopped once another node is seen publishing that transform",
     "publish_sensor_tf": "publish base_frame -> the scan's frame on /tf_static from filter.sensor_offset_* / "
                          "laser.extrinsic (off when the bag's /tf_static has it)",
+    "mount_from_tf": "live: the lidar mount is the first scan's frame in /tf_static + /tf (the predictor decides, "
+                     "the correlator and mapper wait for it on pf_slam/lidar_mount); mount parameters are the fallback",
+    "mount_wait_s": "mount_from_tf: after the first scan, wait this long for its transform before using the "
+                    "parameters' mount (s)",
     "expected_observers": "extra subscribers (e.g. pf-slam run's recorder) that must be matched before the replay starts",
     "map_publish_period_s": "/map, /map_metadata and /path are published this often (wall time), and after the last scan (s)",
     "occupied_thresh": "/map: a cell with occupancy probability >= this is 100 (map_server trinary) (probability)",

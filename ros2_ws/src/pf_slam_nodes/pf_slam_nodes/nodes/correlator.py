@@ -49,6 +49,17 @@ class Correlator(Node):
         self.create_subscription(ParticleArray, topics.PARTICLES_PREDICTED, self._on_predicted, qos.pipeline())
         self.create_subscription(OccupancyGrid, topics.GRID, self._on_grid, qos.pipeline(10))
         status_publisher(self, lambda: {"faults": {"scans_lost_correlator": self.scans.lost}})
+        self.mount_ready = not param(self, "mount_from_tf", False)  # else: wait for the predictor's decision
+        if not self.mount_ready:
+            from .mount_tf import receive_mount
+            receive_mount(self, self._on_mount)
+
+    def _on_mount(self, decision: dict) -> None:
+        from .mount_tf import apply_to_stage
+        if not self.mount_ready:
+            apply_to_stage(self.stage, decision["params"])
+            self.mount_ready = True
+            self._drain()
 
     def _on_scan(self, raw: bytes) -> None:
         self.scans.append(raw)
@@ -69,7 +80,7 @@ class Correlator(Node):
 
     def _drain(self) -> None:
         # scans and sets both arrive in scan order; the n-th scan is the n-th update's
-        while self.predicted:
+        while self.predicted and self.mount_ready:
             pa = self.predicted[0]
             stamp = convert.stamp_to_ns(pa.header.stamp)  # the scan's
             if pa.update:

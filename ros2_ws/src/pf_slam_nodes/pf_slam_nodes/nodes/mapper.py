@@ -112,6 +112,19 @@ class Mapper(Node):
         status_publisher(self, lambda: {"faults": {"scans_lost_mapper": self.scans.lost,
                                                    "map_beyond_bound": self._beyond_bound()}})
         self._warned_bound = False
+        self.mount_ready = not param(self, "mount_from_tf", False)  # else: wait for the predictor's decision
+        if not self.mount_ready:
+            from .mount_tf import receive_mount
+            receive_mount(self, self._on_mount)
+
+    def _on_mount(self, decision: dict) -> None:
+        from .mount_tf import apply_to_stage
+        if not self.mount_ready:
+            apply_to_stage(self.stage, decision["params"])
+            if decision["source"] != "parameters":
+                self.pub_tf_static = None  # the robot's TF tree has base -> lidar
+            self.mount_ready = True
+            self._drain()
 
     def _beyond_bound(self) -> int:
         """Scans with cells the grid could not grow to (grid.max_cells)."""
@@ -198,7 +211,7 @@ class Mapper(Node):
         self._maybe_finish()
 
     def _drain(self) -> None:
-        while self.updates:
+        while self.updates and self.mount_ready:
             pa = self.updates[0]
             stamp = convert.stamp_to_ns(pa.header.stamp)  # the scan's
             if pa.update and not self.scans.has(self.integrated, stamp):

@@ -118,6 +118,7 @@ class Predictor(Node):
         self.stage = self.sched.stage
         # "final" once the last scan of the bag is posed: the run's summary waits for it
         self._publish_status = status_publisher(self, self.sched.status)
+        self._init_mount()
 
     def _init_odom_tf(self) -> None:
         """odom -> base_link on /tf, one per scan, as bytes (the car's lidar runs at 100 Hz); not
@@ -224,7 +225,34 @@ class Predictor(Node):
             self.get_logger().error(f"{topic}: message dropped: {exc}", throttle_duration_sec=5.0)
             return None, None
 
+    def _init_mount(self) -> None:
+        """mount_from_tf: scans are held until the lidar mount is decided (nodes/mount_tf.py)."""
+        self.mount = None
+        self._held: list[bytes] = []
+        wait_s = param(self, "mount_wait_s", 5.0)
+        if param(self, "mount_from_tf", False):
+            from .mount_tf import MountDecider
+            self.mount = MountDecider(self, self.base_frame, self.odom_frame, wait_s, self._release_held)
+
+    def _release_held(self) -> None:
+        held, self._held = self._held, []
+        for raw in held:
+            self._take_scan(raw)
+
     def _on_scan(self, raw: bytes) -> None:
+        if self.mount is not None and self.mount.decided is None:
+            self._held.append(raw)
+            if self.mount.frame is None:
+                from rclpy.serialization import deserialize_message
+                try:
+                    frame = deserialize_message(raw, LaserScan).header.frame_id
+                except Exception:  # unreadable: the next scan names the frame
+                    return
+                self.mount.first_scan(frame)
+            return
+        self._take_scan(raw)
+
+    def _take_scan(self, raw: bytes) -> None:
         checks = self.sched.checks
         try:
             stamp, (a_min, a_max, a_inc), (r_min, r_max), ranges = cdr.laser_scan_fields(raw)

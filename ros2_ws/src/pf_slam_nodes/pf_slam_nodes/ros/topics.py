@@ -22,6 +22,7 @@ GRID = "pf_slam/grid"  # mapper -> correlator: the occupancy grid after every in
 REPLAY_STATUS = "pf_slam/replay_status"  # bag_replay -> all: end of bag
 REPLAY_STALL = "pf_slam/replay_stall"  # bag_replay -> predictor: stopped at max_in_flight, counts so far
 READY = "pf_slam/ready"  # each stage, once its outputs are matched: the replay may start
+LIDAR_MOUNT = "pf_slam/lidar_mount"  # predictor -> correlator, mapper: the mount from TF (mount_from_tf), latched
 STATUS = "pf_slam/status"  # nodes -> recorder: JSON (fault counters), latched
 
 # the mapper's services (live use)

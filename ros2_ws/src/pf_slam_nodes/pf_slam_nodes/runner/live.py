@@ -7,18 +7,16 @@ saved there when the graph is stopped. Parameters as `pf-slam run`: a profile (d
 is no bag to choose one from) < `--params FILE` < flags. The domain is the environment's (or
 --domain): a live graph must meet the robot's nodes, so it is never isolated.
 
-The lidar's mount is the first scan's frame looked up in what /tf_static and /tf carried until
-then, as `pf-slam run` does in a bag's /tf_static (mount parameters given by the user skip that):
-in one process the graph runs from the start and the mount goes into the correlator's and the
-mapper's stages before their first scan; one process per node needs it in the parameters, so the
-node processes start after the first scan and its transform (`--mount-wait` seconds at most). `use_sim_time` follows /clock: each node switches
+The lidar's mount is the first scan's frame looked up in /tf_static and /tf, as `pf-slam run`
+does in a bag's /tf_static (mount parameters given by the user skip that): the nodes'
+``mount_from_tf`` (nodes/mount_tf.py; the predictor decides, waiting `--mount-wait` seconds at
+most for the transform, and the correlator and the mapper wait for its decision). `use_sim_time` follows /clock: each node switches
 to the simulated clock at the first /clock message (`--sim-time auto`, the default).
 """
 from __future__ import annotations
 
 import os
 import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -27,7 +25,7 @@ from ..nodes.common import follow_clock
 from ..ros.domain import RosDomain
 from .common import DEFAULT_INPUTS, RunError
 from .inputs import topic_remaps
-from .mount import MOUNT_PARAMS, LidarMount, add_transform, mount_in_tree
+from .mount import MOUNT_PARAMS
 from .params import check_node_values, load_params, node_params, params_topics
 
 LIVE_NODES = ("predictor", "correlator", "mapper")
@@ -102,94 +100,15 @@ def plan_live(params_file: str | None = None, profile: str | None = None, odomet
     return LivePlan(per_node, node_names, topic_remaps(inputs), inputs, line, user_mount)
 
 
-class MountProbe:
-    """Hears /tf_static and /tf, and the scan topic until the first scan: the lidar's mount is that
-    scan's frame looked up in the transforms heard (`pf-slam run` does it in a bag's /tf_static)."""
+def _report_mount(node, log: Callable[[str], None]) -> None:
+    """Print the predictor's lidar mount decision (pf_slam/lidar_mount) when it comes."""
+    from ..nodes.mount_tf import receive_mount
 
-    def __init__(self, ctx, plan: LivePlan) -> None:
-        import rclpy
-        from sensor_msgs.msg import LaserScan
-        from tf2_msgs.msg import TFMessage
-
-        from ..ros import qos, topics
-        self.base = str(plan.per_node["mapper"].get("base_frame", "base_link"))
-        self.odom_frame = str(plan.per_node["mapper"].get("odom_frame", "odom"))
-        self.scan_topic = plan.inputs["scan"]
-        self.tree: dict = {}
-        self.warnings: list[str] = []
-        self.frame: str | None = None
-        self.t_scan: float | None = None
-        self.on_first_scan: Callable[[], None] | None = None
-        self.node = rclpy.create_node("pf_slam_mount_probe", context=ctx)
-        self.node.create_subscription(TFMessage, topics.TF_STATIC, self._on_tf("/tf_static"), qos.latched(100))
-        self.node.create_subscription(TFMessage, topics.TF, self._on_tf("/tf"), qos.outputs(1000))
-        self._scan_sub = self.node.create_subscription(LaserScan, self.scan_topic, self._on_scan, qos.pipeline(10))
-
-    def _on_tf(self, topic: str):
-        def cb(msg) -> None:
-            for tr in msg.transforms:
-                add_transform(self.tree, tr, self.warnings, topic)
-        return cb
-
-    def _on_scan(self, msg) -> None:
-        if self.frame is None:
-            self.frame, self.t_scan = msg.header.frame_id.lstrip("/"), time.monotonic()
-            self.node.destroy_subscription(self._scan_sub)
-            if self.on_first_scan is not None:
-                self.on_first_scan()
-
-    def mount(self) -> LidarMount:
-        """The mount from what was heard so far (source "parameters" if the frame is not there)."""
-        m = LidarMount("parameters", self.base, self.frame or "")
-        m = mount_in_tree(m, dict(self.tree), self.scan_topic, self.odom_frame, source="/tf")
-        if m.source != "parameters":
-            m.source = "/tf_static + /tf"
-        m.warnings = self.warnings + m.warnings
-        return m
-
-
-def apply_mount(nodes: dict[str, Any], mount: LidarMount) -> None:
-    """Put the mount into the correlator's and the mapper's stages (one process: before their first
-    scan) and stop the mapper's own base -> lidar transform (the robot's TF tree has it)."""
-    import dataclasses
-    p = mount.params()
-    fields = {k.split(".", 1)[1]: v for k, v in p.items() if k.startswith("filter.")}
-    for name in ("correlator", "mapper"):
-        stage = nodes[name].stage
-        if fields:
-            stage.filter_cfg = dataclasses.replace(stage.filter_cfg, **fields)
-        if "laser.extrinsic" in p:
-            stage.laser_cfg = dataclasses.replace(stage.laser_cfg, extrinsic=tuple(p["laser.extrinsic"]))
-    nodes["mapper"].pub_tf_static = None
-
-
-def _log_mount(mount: LidarMount, wait_s: float | None, log: Callable[[str], None]) -> None:
-    log(f"[pf-slam] {mount.describe()}" if mount.source != "parameters" else
-        f"[pf-slam] no transform to the scan's frame {mount.scan_frame!r} on /tf_static or /tf"
-        + (f" within {wait_s:g} s" if wait_s else " at the first scan") + ": the parameters' mount is used")
-    for w in mount.warnings:
-        log(f"[pf-slam] warning: {w}")
-
-
-def wait_for_mount(ctx, executor, plan: LivePlan, wait_s: float, log: Callable[[str], None],
-                   stop: list[str]) -> LidarMount | None:
-    """One process per node: their parameters must hold the mount, so wait for the first scan and
-    its frame in /tf_static + /tf (up to `wait_s` after that scan); None on a stop signal first."""
-    probe = MountProbe(ctx, plan)
-    executor.add_node(probe.node)
-    log(f"[pf-slam] waiting for the first scan on {plan.inputs['scan']} (its frame is looked up on /tf_static, /tf)")
-    try:
-        while not stop:
-            executor.spin_once(timeout_sec=0.05)
-            if probe.frame is None:
-                continue
-            m = probe.mount()
-            if m.source != "parameters" or time.monotonic() - probe.t_scan > wait_s:
-                return m
-        return None
-    finally:
-        executor.remove_node(probe.node)
-        probe.node.destroy_node()
+    def show(decision: dict) -> None:
+        log(f"[pf-slam] {decision['text']}")
+        for w in decision.get("warnings", []):
+            log(f"[pf-slam] warning: {w}")
+    receive_mount(node, show)
 
 
 def live(params_file: str | None = None, profile: str | None = None, out: str | None = None,
@@ -225,35 +144,20 @@ def live(params_file: str | None = None, profile: str | None = None, out: str | 
     saved = 0
     try:
         with _catch_stop_signals(stop):
-            if processes == "multi" and not plan.user_mount:
-                mount = wait_for_mount(ctx, ex, plan, mount_wait_s, log, stop)
-                if mount is None:
-                    return 0
-                _log_mount(mount, mount_wait_s, log)
-                for name in ("correlator", "mapper", "predictor"):
-                    plan.per_node[name].update({k: v for k, v in mount.params().items()
-                                                if name != "predictor" or k.startswith("filter.")})
-                if mount.source != "parameters":
-                    plan.per_node["mapper"]["publish_sensor_tf"] = False  # the robot's TF has it
+            if not plan.user_mount:  # the predictor decides it at the first scan (nodes/mount_tf.py)
+                for name in ("predictor", "correlator", "mapper"):
+                    plan.per_node[name]["mount_from_tf"] = True
+                plan.per_node["predictor"]["mount_wait_s"] = float(mount_wait_s)
+            control = rclpy.create_node("pf_slam_live", context=ctx)
+            nodes.append(control)
+            ex.add_node(control)
+            _report_mount(control, log)
             if processes == "single":
-                by_name = {}
-                if not plan.user_mount:  # heard from now on; applied when the first scan arrives
-                    probe = MountProbe(ctx, plan)
-                    nodes.append(probe.node)
-                    ex.add_node(probe.node)
-
-                    def first_scan() -> None:
-                        mount = probe.mount()
-                        _log_mount(mount, None, log)
-                        if mount.source != "parameters":
-                            apply_mount(by_name, mount)
-                    probe.on_first_scan = first_scan
                 for name in plan.node_names:
                     node = _make_node(name, ctx, plan.per_node[name], plan.remaps)
                     if sim_time == "auto":
                         follow_clock(node, log=lambda s: log(f"[pf-slam] {s}"))
                     nodes.append(node)
-                    by_name[name] = node
                     ex.add_node(node)
             else:
                 logs = Path(out) if out else Path(os.environ.get("TMPDIR", "/tmp")) / f"pf_slam_live_{os.getpid()}"
@@ -270,10 +174,7 @@ def live(params_file: str | None = None, profile: str | None = None, out: str | 
                 for name, c in children.items():
                     if c.poll() is not None and not done.done():
                         done.set_result(f"node {name} exited with code {c.returncode}; log: {logs / 'logs' / name}.log")
-            control = rclpy.create_node("pf_slam_live", context=ctx)
-            nodes.append(control)
             control.create_timer(0.1, check)
-            ex.add_node(control)
             while not done.done():
                 ex.spin_until_future_complete(done, timeout_sec=1.0)
             if done.result() is not None:
