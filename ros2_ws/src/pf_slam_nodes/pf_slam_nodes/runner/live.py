@@ -180,7 +180,7 @@ def live(params_file: str | None = None, profile: str | None = None, out: str | 
             if done.result() is not None:
                 raise RunError(done.result())
             if out:  # still under the signal handlers: a second Ctrl-C does not cut the save short
-                saved = save_map_via_service(ctx, ex, out, log)
+                saved = save_map_via_service(ctx, ex, str(Path(out).resolve()), log)
     finally:
         _stop_children(children)
         ex.shutdown()
