@@ -32,7 +32,10 @@ def play(bag: str, rate: str = "1", clock: bool = False, delay_s: float = 0.0, c
     """
     import rclpy
     from rosgraph_msgs.msg import Clock
-    factor = parse_rate(rate)
+    try:
+        factor = parse_rate(rate)
+    except ValueError:
+        raise ValueError(f"--rate must be 'max' or a positive number, got {rate!r}") from None
     info = bag_info(bag)
     wanted = set(topic_filter) if topic_filter else set(info["topics"])
     unknown = (wanted | set(wait_for or ())) - set(info["topics"])
