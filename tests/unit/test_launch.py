@@ -1,6 +1,7 @@
 """The launch file (run only on a ROS install: `launch` is not in the pip venv) is valid Python
 and starts node executables that the package really installs."""
 import ast
+import os
 from pathlib import Path
 
 PKG = Path(__file__).resolve().parents[2] / "ros2_ws/src/pf_slam_nodes"
@@ -41,3 +42,36 @@ def test_launch_file_profile_argument():
     for name in ("indoor", "kaist", "mines", "sim_indoor"):
         assert name in source and profiles.profile_file(name).is_file()
     assert profiles.PROFILES["indoor"] == _constant(LAUNCH, "DEFAULT_PARAMS")
+
+
+def test_launch_plan_live_and_bag():
+    """Without bag:= no bag_replay (live topics) and no base_link -> lidar of the mapper's own;
+    use_sim_time auto is left unset (the nodes follow /clock), true/false is passed as a bool,
+    never to bag_replay (the clock's source); odometry_source reaches the predictor."""
+    import pytest
+
+    from pf_slam_nodes.launch_plan import graph_nodes
+    live = graph_nodes()
+    assert list(live) == ["predictor", "correlator", "mapper"]
+    assert all("use_sim_time" not in p for p in live.values())
+    assert live["mapper"]["publish_sensor_tf"] is False
+    assert all(live[n]["mount_from_tf"] is True for n in ("predictor", "correlator", "mapper"))
+    bag = graph_nodes(bag="/data/bag", use_sim_time="true", texture="true", odometry_source="tf",
+                      scan_topic="/front/scan")
+    assert list(bag) == ["bag_replay", "predictor", "correlator", "mapper", "texture"]
+    assert bag["bag_replay"] == {"bag": "/data/bag", "scan_topic": "/front/scan"}
+    assert all(bag[n]["use_sim_time"] is True for n in ("predictor", "correlator", "mapper", "texture"))
+    assert bag["predictor"]["odometry_source"] == "tf" and bag["mapper"]["publish_sensor_tf"] is True
+    assert "mount_from_tf" not in bag["mapper"]  # pf-slam run's way: the bag's /tf_static, read before
+    assert graph_nodes(use_sim_time="false")["mapper"]["use_sim_time"] is False
+    assert graph_nodes(publish_sensor_tf="true")["mapper"]["publish_sensor_tf"] is True
+    loc = graph_nodes(map="maps/office.yaml")  # localization only, on live topics
+    assert loc["correlator"]["mode"] == "localization" and loc["mapper"]["mode"] == "localization"
+    assert loc["mapper"]["map_file"] == os.path.abspath("maps/office.yaml")
+    for bad in (dict(use_sim_time="yes"), dict(odometry_source="gps"), dict(texture="maybe")):
+        with pytest.raises(ValueError, match="launch argument"):
+            graph_nodes(**bad)
+    source = LAUNCH.read_text()
+    assert "graph_nodes(" in source and 'DeclareLaunchArgument("bag", default_value=""' in source
+    for arg in ("odometry_source", "publish_sensor_tf"):
+        assert f'DeclareLaunchArgument("{arg}"' in source

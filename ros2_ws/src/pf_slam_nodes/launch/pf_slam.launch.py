@@ -1,11 +1,18 @@
 """Launch the pf_slam graph on a real ROS 2 Jazzy install (colcon workspace).
 
-    ros2 launch pf_slam_nodes pf_slam.launch.py bag:=/path/to/bag [params_file:=<file>] [profile:=auto] use_sim_time:=true
+    ros2 launch pf_slam_nodes pf_slam.launch.py [bag:=/path/to/bag] [params_file:=<file>] [profile:=auto]
+
+Without bag:= the graph runs on live topics (a robot, or `ros2 bag play --clock` in another
+terminal): predictor, correlator and mapper, no bag_replay; use_sim_time:=auto (the default) lets
+each node switch to /clock when one is published; odometry_source:=tf takes odometry from the
+robot's odom -> base_link transform. The map: the mapper's pf_slam/save_map service
+(pf_slam_interfaces/srv/SaveMap), pf_slam/pause_mapping (std_srvs/SetBool), pf_slam/reset
+(std_srvs/Trigger). What is started with which parameters: pf_slam_nodes.launch_plan.
 
 Parameters, as `pf-slam run`: profile:=auto (the default) reads the bag's metadata and sensors and
 picks the profile of config/ that fits (pf_slam_nodes.profiles: converter metadata pf_slam.format,
 else a tilted lidar -> kaist, a planar one -> indoor = carmen_indoor.yaml); if the bag cannot be
-read there, the indoor profile. The chosen profile is printed. A params_file:= is the whole tuning
+read there (or without a bag), the indoor profile. The chosen profile is printed. A params_file:= is the whole tuning
 (no profile under it, as `pf-slam run --params`) unless profile:=NAME is given, which layers that
 profile under it; profile:=none uses the nodes' built-in defaults.
 
@@ -19,7 +26,6 @@ import os
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, LogInfo, OpaqueFunction
-from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
@@ -36,6 +42,10 @@ def _parameter_files(context):
     from pf_slam_nodes import profiles
     if params_file and profile == "auto":
         files, line = [], f"[pf-slam] profile: none (params_file {params_file} is the whole tuning)"
+    elif not bag and profile == "auto":
+        prof = profiles.Profile("indoor", "no bag (live topics): indoor by default", profiles.profile_file("indoor"))
+        path = os.path.join(share, "config", prof.file.name)
+        files, line = [path], prof.line()
     else:
         try:
             prof = profiles.profile_for_bag(bag, forced=profile)
@@ -51,32 +61,36 @@ def _parameter_files(context):
 
 
 def _nodes(context):
+    from pf_slam_nodes.launch_plan import graph_nodes
     arg = LaunchConfiguration
     files, line = _parameter_files(context)
-    common = files + [{"use_sim_time": arg("use_sim_time")}]
     remaps = [("scan", arg("scan_topic")), ("odom", arg("odom_topic")), ("encoders", arg("encoders_topic")),
               ("fog", arg("fog_topic")), ("imu", arg("imu_topic"))]
-    extra = {"bag_replay": [{"bag": arg("bag"), "scan_topic": arg("scan_topic")}]}
-    saved_map = arg("map").perform(context)
-    if saved_map:  # localization only, as `pf-slam run --localize`
-        extra["correlator"] = [{"mode": "localization"}]
-        extra["mapper"] = [{"mode": "localization", "map_file": os.path.abspath(saved_map)}]
+    plan = graph_nodes(**{k: arg(k).perform(context) for k in
+                          ("bag", "use_sim_time", "texture", "odometry_source", "publish_sensor_tf", "scan_topic",
+                           "map")})
     return [LogInfo(msg=line)] + [
         Node(package="pf_slam_nodes", executable=name, name=name, output="screen",
-             parameters=common + extra.get(name, []), remappings=remaps,
-             condition=IfCondition(arg("texture")) if name == "texture" else None)
-        for name in NODES]
+             parameters=files + [extra], remappings=remaps)
+        for name, extra in plan.items()]
 
 
 def generate_launch_description():
     return LaunchDescription([
-        DeclareLaunchArgument("bag", description="rosbag2 to replay (mcap or sqlite3)"),
+        DeclareLaunchArgument("bag", default_value="",
+                              description="rosbag2 to replay (mcap or sqlite3); empty: live topics"),
         DeclareLaunchArgument("profile", default_value="auto",
                               description="auto (from the bag; indoor if it cannot be read), indoor, kaist, "
                                           "mines, sim_indoor or none"),
         DeclareLaunchArgument("params_file", default_value="",
                               description="ROS 2 parameter YAML; the whole tuning unless profile:=NAME"),
-        DeclareLaunchArgument("use_sim_time", default_value="true"),
+        DeclareLaunchArgument("use_sim_time", default_value="auto",
+                              description="auto (follow /clock once published), true or false"),
+        DeclareLaunchArgument("odometry_source", default_value="",
+                              description="odom, encoders or tf (odom -> base_link on /tf); empty: the parameters'"),
+        DeclareLaunchArgument("publish_sensor_tf", default_value="auto",
+                              description="mapper: base_link -> lidar on /tf_static from the parameters; auto: "
+                                          "only with a bag (a robot's TF tree has it)"),
         DeclareLaunchArgument("texture", default_value="false", description="run the stereo texture node"),
         DeclareLaunchArgument("map", default_value="",
                               description="localization only: track the pose on this saved map (map_server .yaml)"),

@@ -92,6 +92,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="result.mcap: a /map every S seconds of bag time (default: bag duration / 20; "
                         "the final map always)")
 
+    _add_live_parsers(sub)
+
     e = sub.add_parser("eval", help="ATE/RPE against a reference trajectory; Kümmerle relations error")
     e.add_argument("--est", help="estimated trajectory (TUM)")
     e.add_argument("--gt", help="reference trajectory (TUM or 't x y theta'), or a .relations file")
@@ -153,6 +155,40 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _add_live_parsers(sub) -> None:
+    """`pf-slam live` (the graph on live topics) and `pf-slam play` (a bag onto live topics)."""
+    lv = sub.add_parser("live", help="run the SLAM graph on live topics (a robot, or a bag played elsewhere) "
+                        "until Ctrl-C; the map via the pf_slam/save_map service or --out")
+    lv.add_argument("--params", help="ROS 2 parameter YAML (the whole tuning unless --profile NAME)")
+    lv.add_argument("--profile", default="auto", metavar="NAME",
+                    help="auto (default: indoor, or none under --params), indoor, kaist, mines, sim_indoor or none")
+    lv.add_argument("--out", help="save map.pgm, map.yaml and trajectory.tum here when stopped")
+    lv.add_argument("--processes", choices=["single", "multi"], default="single")
+    lv.add_argument("--odometry", choices=["odom", "encoders", "tf"],
+                    help="odometry from nav_msgs/Odometry, wheel encoders, or the odom -> base_link transform on "
+                         "/tf (default: the parameters', else odom)")
+    lv.add_argument("--sim-time", choices=["auto", "true", "false"], default="auto",
+                    help="use_sim_time: auto follows /clock once one is published (default)")
+    lv.add_argument("--mount-wait", type=float, default=5.0, metavar="S",
+                    help="after the first scan, wait up to S s for its frame on /tf_static or /tf (the lidar mount)")
+    lv.add_argument("--texture", action="store_true", help="also run the stereo texture node")
+    lv.add_argument("--particles", type=int, help="number of particles (filter.num_particles)")
+    lv.add_argument("--seed", type=int, help="random seed (filter.seed)")
+    lv.add_argument("--domain", type=int, metavar="N", help="ROS domain (default: ROS_DOMAIN_ID, else 0)")
+    for role in DEFAULT_INPUTS:
+        lv.add_argument(f"--{role.replace('_', '-')}-topic", dest=f"{role}_topic", metavar="TOPIC",
+                        help=f"default {DEFAULT_INPUTS[role]}")
+    pl = sub.add_parser("play", help="publish a bag's topics in real time (or N x) with /clock, as "
+                        "`ros2 bag play --clock`, for a live graph")
+    pl.add_argument("bag")
+    pl.add_argument("--rate", default="1", help="1 (real time, default), N (N x faster) or max")
+    pl.add_argument("--clock", action="store_true", help="publish /clock from the bag's record times")
+    pl.add_argument("--delay", type=float, default=0.0, metavar="S", help="wait S s before the first message")
+    pl.add_argument("--topics", nargs="*", help="only these topics (default: all)")
+    pl.add_argument("--wait-for", nargs="*", metavar="TOPIC",
+                    help="first wait (up to 30 s) until each of these topics has a subscriber (discovery)")
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:2] == ["simulate", "thor"]:  # `pf-slam simulate thor ...` = `pf-slam simulate-thor ...`
@@ -197,6 +233,12 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "run":
         from .graph import run_cli
         return run_cli(args)
+    if args.command == "live":
+        from .runner.live import live_cli
+        return live_cli(args)
+    if args.command == "play":
+        from .player import play_cli
+        return play_cli(args)
     if args.command == "eval":
         from .core.metrics import format_evaluation
         from .io.evaluation import evaluate

@@ -210,7 +210,7 @@ class BagReplay(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    return run_node(BagReplay, args)
+    return run_node(BagReplay, args, clock_follower=False)  # it publishes /clock
 
 
 if __name__ == "__main__":

@@ -52,7 +52,8 @@ PARAM_DOCS: dict[str, str] = {
     "map_frame": "REP-105 map frame: /map, /path, /pose and particle sets are in it",
     "odom_frame": "REP-105 odom frame: parent of base_frame (dead reckoning), child of map_frame",
     "base_frame": "REP-105 robot frame (base_link): child of odom_frame, parent of the sensor frames",
-    "odometry_source": "'odom' (nav_msgs/Odometry on odom) or 'encoders' (JointState wheel angles on encoders)",
+    "odometry_source": "'odom' (nav_msgs/Odometry on odom), 'encoders' (JointState wheel angles on encoders) or 'tf' "
+                       "(the odom_frame -> base_frame transform on /tf, as a robot's base controller publishes it)",
     "odom_sync": "'exact': odometry stamped like each scan (same log line); 'interpolate': asynchronous odometry",
     "fog_format": "yaw from a gyro instead of the wheels: 'none', 'batch' (FogBatch on fog), 'vector3' "
                   "(Vector3Stamped on fog) or 'imu' (sensor_msgs/Imu on imu, mounted level: angular_velocity.z)",
@@ -61,9 +62,14 @@ PARAM_DOCS: dict[str, str] = {
                        "the replay's pf_slam/replay_stall decides instead, deterministically)",
     "stamp_offset_s": "odometry stamps this far (s) ahead of or behind the scan stamps are reported (odom_stamp_offset)",
     "time_gap_s": "scan stamps stepping forward by more than this are counted as a time gap (s)",
-    "publish_odom_tf": "publish odom -> base_frame on /tf at every scan (off when the bag carries its own /tf)",
+    "publish_odom_tf": "publish odom -> base_frame on /tf at every scan (off when the bag carries its own /tf); never "
+                       "with odometry_source tf, and stopped once another node is seen publishing that transform",
     "publish_sensor_tf": "publish base_frame -> the scan's frame on /tf_static from filter.sensor_offset_* / "
                          "laser.extrinsic (off when the bag's /tf_static has it)",
+    "mount_from_tf": "live: the lidar mount is the first scan's frame in /tf_static + /tf (the predictor decides, "
+                     "the correlator and mapper wait for it on pf_slam/lidar_mount); mount parameters are the fallback",
+    "mount_wait_s": "mount_from_tf: after the first scan, wait this long for its transform before using the "
+                    "parameters' mount (s)",
     "expected_observers": "extra subscribers (e.g. pf-slam run's recorder) that must be matched before the replay starts",
     "mode": "'slam' (build the map) or 'localization' (track the pose on a fixed map: mapper map_file, or any "
             "map_server's /map; the map is never changed)",
@@ -319,14 +325,37 @@ def warn_undeclared(node: Node) -> list[str]:
     return names
 
 
-def run_node(factory: Callable[..., Node], args: list[str] | None = None) -> int:
-    """`main()` of a node console script: init, spin until Ctrl-C / SIGTERM / shutdown, clean up."""
+def follow_clock(node, log: Callable[[str], None] | None = None) -> None:
+    """Switch `node` to the simulated clock (use_sim_time) at the first /clock message, unless
+    use_sim_time was set for it: `use_sim_time` follows /clock, as a user of a bag player expects."""
+    from rclpy.parameter import Parameter
+    from rosgraph_msgs.msg import Clock
+
+    from ..ros import qos, topics
+    if "use_sim_time" in getattr(node, "_parameter_overrides", {}):
+        return
+    holder: list = []
+
+    def on_clock(_msg) -> None:
+        if not holder:
+            return
+        node.destroy_subscription(holder.pop())
+        node.set_parameters([Parameter("use_sim_time", Parameter.Type.BOOL, True)])
+        (log or node.get_logger().info)(f"{node.get_name()}: /clock is published: use_sim_time true")
+    holder.append(node.create_subscription(Clock, topics.CLOCK, on_clock, qos.outputs(10)))
+
+
+def run_node(factory: Callable[..., Node], args: list[str] | None = None, clock_follower: bool = True) -> int:
+    """`main()` of a node console script: init, spin until Ctrl-C / SIGTERM / shutdown, clean up.
+    `clock_follower`: use_sim_time follows /clock when not set (not for the clock's own source)."""
     die_with_parent()
     rclpy.init(args=args)
     node = None
     try:
         node = factory()
         warn_undeclared(node)
+        if clock_follower:
+            follow_clock(node)  # use_sim_time unset (a launch file's use_sim_time:=auto): it follows /clock
         ex = SingleThreadedExecutor()
         ex.add_node(node)
         ex.spin()

@@ -4,7 +4,8 @@ Subscribes: pf_slam/scan_corrected (LaserScan: the predictor forwards the bytes 
 scans it sends to be corrected; the n-th belongs to the n-th set with update=true),
 particles/predicted (ParticleArray: one per correction, plus the pass-through end-of-run set),
 pf_slam/grid (after each integration, the mapper's patch: occupancy of the cells that scan
-touched). Publishes: particles/updated (one per predicted set, carrying the
+touched; a patch with resolution 0 is the mapper's reset: the field is dropped and starts again,
+as at the first scan, with the next patch). Publishes: particles/updated (one per predicted set, carrying the
 pose estimate: the best particle or the weighted mean, filter.pose_estimate).
 
 A corrected set (update=true) is scored against the map that holds every scan corrected before
@@ -69,12 +70,23 @@ class Correlator(Node):
         self.create_subscription(OccupancyGrid, topics.GRID, self._on_grid, qos.pipeline(10))
         self.particles_now = 0
         self._publish_status = status_publisher(self, self._status)
+        self.mount_ready = not param(self, "mount_from_tf", False)  # else: wait for the predictor's decision
+        if not self.mount_ready:
+            from .mount_tf import receive_mount
+            receive_mount(self, self._on_mount)
 
     def _status(self) -> dict:
         out = {"faults": {"scans_lost_correlator": self.scans.lost}}
         if self.mode == "localization":
             out["localization"] = self.stage.localization_status(self.particles_now)
         return out
+
+    def _on_mount(self, decision: dict) -> None:
+        from .mount_tf import apply_to_stage
+        if not self.mount_ready:
+            apply_to_stage(self.stage, decision["params"])
+            self.mount_ready = True
+            self._drain()
 
     def _on_scan(self, raw: bytes) -> None:
         self.scans.append(raw)
@@ -85,6 +97,9 @@ class Correlator(Node):
         self._drain()
 
     def _on_grid(self, msg: OccupancyGrid) -> None:
+        if msg.info.resolution == 0.0:  # the mapper's reset: a new map from its next patch on
+            self.stage.field = self.stage.known = None
+            return
         occ, res, origin = convert.msg_to_grid(msg)
         self.stage.apply_patch(MapPatch(occ, res, np.asarray(origin)))
         self.grids_received += 1
@@ -127,7 +142,7 @@ class Correlator(Node):
 
     def _drain(self) -> None:
         # scans and sets both arrive in scan order; the n-th scan is the n-th update's
-        while self.predicted:
+        while self.predicted and self.mount_ready:
             pa = self.predicted[0]
             stamp = convert.stamp_to_ns(pa.header.stamp)  # the scan's
             if pa.update:

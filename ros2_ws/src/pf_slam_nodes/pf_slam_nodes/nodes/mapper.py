@@ -16,6 +16,14 @@ mode: localization -- the map is map_file (a map_server .yaml), loaded at start-
 latched on /map as loaded (at once, for the correlator, then like a built map); without map_file
 another node (nav2's map_server) publishes /map and this node publishes none. No scan is
 integrated and no grid patch is sent. map -> odom, /path and /tf_static as in SLAM.
+
+It also keeps every scan's pose (pose, from the predictor) for the trajectory, and serves (live use,
+no end of bag needed): pf_slam/save_map (pf_slam_interfaces/SaveMap: map.pgm + map.yaml in map_server
+format and trajectory.tum into a folder), pf_slam/pause_mapping (std_srvs/SetBool: true freezes the
+map, the filter goes on localising against it; false resumes), pf_slam/reset (std_srvs/Trigger: a new,
+empty map from the next corrected scan on, at the filter's pose then; the trajectory kept so far is
+dropped). A reset reaches the correlator in order on pf_slam/grid (a patch with resolution 0 just
+before the new map's first patch), so it drops its likelihood field at the same scan.
 """
 from __future__ import annotations
 
@@ -25,16 +33,46 @@ import numpy as np
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import MapMetaData, OccupancyGrid, Path
 from pf_slam_interfaces.msg import ParticleArray, ReplayStatus
+from pf_slam_interfaces.srv import SaveMap
 from rclpy.node import Node
 from sensor_msgs.msg import LaserScan
+from std_srvs.srv import SetBool, Trigger
 from tf2_msgs.msg import TFMessage
 
 from ..core.geometry import compose, matrix_to_quat, relative_pose
 from ..core.stages import MappingStage
 from ..io.mapfile import read_map, trinary
-from ..ros import convert, qos, topics
+from ..ros import cdr, convert, qos, topics
 from .common import (ScanQueue, announce_when_matched, declare_config, mount_of, param, run_node, scan_fields,
                      status_publisher)
+
+
+class PoseLog:
+    """Stamped (x, y, yaw) poses in growing arrays: 32 bytes a pose, for live runs of hours."""
+
+    def __init__(self) -> None:
+        self._t = np.empty(1024, np.int64)
+        self._p = np.empty((1024, 3))
+        self._n = 0
+
+    def __len__(self) -> int:
+        return self._n
+
+    def append(self, stamp_ns: int, pose) -> None:
+        if self._n == len(self._t):
+            self._t = np.concatenate([self._t, np.empty_like(self._t)])
+            self._p = np.concatenate([self._p, np.empty_like(self._p)])
+        self._t[self._n], self._p[self._n] = stamp_ns, pose
+        self._n += 1
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        return self._t[:self._n].copy(), self._p[:self._n].copy()
+
+    def drop_before(self, stamp_ns: int) -> None:
+        keep = self._t[:self._n] >= stamp_ns
+        k = int(keep.sum())
+        self._t[:k], self._p[:k] = self._t[:self._n][keep], self._p[:self._n][keep]
+        self._n = k
 
 
 class Mapper(Node):
@@ -81,13 +119,102 @@ class Mapper(Node):
         self.create_timer(period, self.publish_map)
         if self.fixed_map is not None:
             self.publish_map()  # latched: the correlator needs it before the first correction
+        self.paused = False
+        self.reset_pending = False
+        self.trajectory = PoseLog()  # every scan's pose (pose): the trajectory save_map writes
+        self.trajectory_from = -(1 << 62)
+        self.create_subscription(PoseStamped, topics.POSE, self._on_pose, qos.pipeline(), raw=True)
+        self.create_service(SaveMap, topics.SAVE_MAP, self._srv_save_map)
+        self.create_service(SetBool, topics.PAUSE_MAPPING, self._srv_pause)
+        self.create_service(Trigger, topics.RESET, self._srv_reset)
         status_publisher(self, lambda: {"faults": {"scans_lost_mapper": self.scans.lost,
                                                    "map_beyond_bound": self._beyond_bound()}})
         self._warned_bound = False
+        self.mount_ready = not param(self, "mount_from_tf", False)  # else: wait for the predictor's decision
+        if not self.mount_ready:
+            from .mount_tf import receive_mount
+            receive_mount(self, self._on_mount)
+
+    def _on_mount(self, decision: dict) -> None:
+        from .mount_tf import apply_to_stage
+        if not self.mount_ready:
+            apply_to_stage(self.stage, decision["params"])
+            if decision["source"] != "parameters":
+                self.pub_tf_static = None  # the robot's TF tree has base -> lidar
+            self.mount_ready = True
+            self._drain()
 
     def _beyond_bound(self) -> int:
         """Scans with cells the grid could not grow to (grid.max_cells)."""
         return 0 if self.stage.grid is None else int(self.stage.grid.scans_beyond_bound)
+
+    def _on_pose(self, raw: bytes) -> None:
+        stamp, pose = cdr.pose_stamped_xy_yaw(raw)
+        if stamp < self.trajectory_from:  # a scan before the last reset
+            return
+        self.trajectory.append(stamp, pose)
+
+    # ------------------------------------------------------------------ services
+    def _srv_save_map(self, req: SaveMap.Request, res: SaveMap.Response) -> SaveMap.Response:
+        from ..io.mapfile import write_map
+        from ..io.trajectory import write_tum
+        res.success = False
+        if not req.directory:
+            res.message = "save_map: 'directory' is empty"
+        elif not self.stage.ready:
+            res.message = "save_map: no map yet (no scan has been corrected)"
+        else:
+            import os
+            from pathlib import Path
+            out = Path(os.path.expanduser(req.directory)).resolve()
+            try:
+                out.mkdir(parents=True, exist_ok=True)
+                occ, resolution, origin = self.stage.map_occupancy()
+                yaml_path = write_map(out, occ, resolution, origin, occupied_thresh=self.thresholds[0],
+                                      free_thresh=self.thresholds[1])
+                tum = out / "trajectory.tum"
+                stamps, poses = self.trajectory.arrays()
+                write_tum(tum, stamps / 1e9, poses)
+            except OSError as e:
+                res.message = f"save_map: cannot write into {out}: {e}"
+            else:
+                res.success = True
+                res.files = [str(yaml_path.with_suffix(".pgm")), str(yaml_path), str(tum)]
+                res.message = (f"map {occ.shape[1]} x {occ.shape[0]} cells ({resolution} m), "
+                               f"{len(self.trajectory)} poses saved in {out}")
+        if res.success:
+            self.get_logger().info(res.message)
+        else:
+            self.get_logger().error(res.message)
+        return res
+
+    def _srv_pause(self, req: SetBool.Request, res: SetBool.Response) -> SetBool.Response:
+        was, self.paused = self.paused, bool(req.data)
+        if was and not self.paused and not self.stage.ready and self.integrated:
+            self.reset_pending = True  # paused since before the first map: start it as after a reset
+        res.success = True
+        res.message = ("mapping paused: the map is frozen, the filter localises against it" if self.paused
+                       else "mapping resumed") + ("" if was != self.paused else " (no change)")
+        self.get_logger().info(res.message)
+        return res
+
+    def _srv_reset(self, _req: Trigger.Request, res: Trigger.Response) -> Trigger.Response:
+        self.reset_pending = True
+        res.success = True
+        res.message = "map reset: a new map starts at the next corrected scan; trajectory cleared"
+        self.get_logger().info(res.message)
+        return res
+
+    def _reset_map(self, stamp: int) -> None:
+        """A new, empty map (built from the next integrated scan on); the correlator is told first."""
+        self.reset_pending = False
+        self.stage.grid = self.stage._occ = self.stage.pose = None
+        self._warned_bound = False
+        self.path.clear()
+        self.trajectory.drop_before(stamp)  # kept from this scan on
+        self.trajectory_from = stamp
+        marker = convert.grid_to_msg(np.zeros((0, 0), np.int8), 0.0, (0.0, 0.0), stamp, self.map_frame)
+        self.pub_grid.publish(marker)  # resolution 0: "reset" (ordered before the new map's first patch)
 
     def _on_scan(self, raw: bytes) -> None:
         self.scans.append(raw)
@@ -102,7 +229,7 @@ class Mapper(Node):
         self._maybe_finish()
 
     def _drain(self) -> None:
-        while self.updates:
+        while self.updates and self.mount_ready:
             pa = self.updates[0]
             stamp = convert.stamp_to_ns(pa.header.stamp)  # the scan's
             if pa.update and not self.scans.has(self.integrated, stamp):
@@ -118,7 +245,16 @@ class Mapper(Node):
                 elif self.pub_tf_static is not None:
                     self._publish_sensor_tf(scan.header.frame_id, stamp)
                 if not self.localize:
-                    self._integrate(pa, pose, scan, stamp)
+                    if self.reset_pending and not self.paused:
+                        self._reset_map(stamp)
+                    if self.paused:  # the map is frozen: an empty patch keeps the correlator in step
+                        g = self.stage.grid
+                        self.pub_grid.publish(convert.grid_to_msg(
+                            np.zeros((0, 0), np.int8),
+                            g.resolution if g is not None else self.stage.grid_cfg.resolution_m,
+                            g.origin if g is not None else (0.0, 0.0), stamp, self.map_frame))
+                    else:
+                        self._integrate(pa, pose, scan, stamp)
             map_to_odom = compose(pose, relative_pose(np.asarray(pa.odom_pose), np.zeros(3)))
             self.pub_tf.publish(TFMessage(transforms=[
                 convert.transform(self.map_frame, self.odom_frame, map_to_odom, stamp)]))

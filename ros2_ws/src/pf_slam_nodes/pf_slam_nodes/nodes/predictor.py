@@ -1,12 +1,15 @@
 """predictor: owns the particle set between scans and moves it with the motion model.
 
 Subscribes: scan (LaserScan; only its stamp and ranges are read, from the serialized bytes), odom
-(nav_msgs/Odometry) or encoders (JointState wheel angles, rad) with optional fog (FogBatch or
+(nav_msgs/Odometry), /tf (odometry_source tf: the odom_frame -> base_frame transforms that the
+robot's base controller publishes) or encoders (JointState wheel angles, rad) with optional fog (FogBatch or
 Vector3Stamped yaw increments, which then replace the wheels' yaw), particles/updated (the
 corrected set), pf_slam/replay_status (end of the bag). Publishes: pose (PoseStamped, map
 frame, exactly one per scan, in scan order), particles/predicted (one per correction),
 pf_slam/scan_corrected (the bytes of each scan it sends to be corrected, before its set), /tf
-(odom_frame -> base_frame: the dead-reckoned odometry at every scan's stamp, REP 105).
+(odom_frame -> base_frame: the dead-reckoned odometry at every scan's stamp, REP 105; never with
+odometry_source tf, and no more once another node is seen publishing odom_frame -> base_frame on
+/tf: a robot's own TF tree is never fought).
 With a lidar on a moving mount (laser.dynamic_frame, e.g. THOR's head) it also subscribes /tf
 for base_frame -> dynamic_frame and sends each corrected scan's mount at its stamp with its set
 (ParticleArray.mount); mostly-floor scans are posed from odometry (core/mount.py).
@@ -39,6 +42,8 @@ publishes what it decides, at once and in its order.
 """
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 from geometry_msgs.msg import PoseStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
@@ -59,8 +64,9 @@ class Predictor(Node):
         filter_cfg, motion_cfg = declare_config(self, "filter"), declare_config(self, "motion")
         self.map_frame = param(self, "map_frame", "map")
         source = param(self, "odometry_source", "odom")
-        if source not in ("odom", "encoders"):
-            raise ValueError(f"parameter 'odometry_source' must be 'odom' or 'encoders', got {source!r}")
+        if source not in ("odom", "encoders", "tf"):
+            raise ValueError(f"parameter 'odometry_source' must be 'odom', 'encoders' or 'tf', got {source!r}")
+        self.source = source
         odom_sync = param(self, "odom_sync", "interpolate")
         odom_wait_scans = param(self, "odom_wait_scans", 50)
         if odom_wait_scans < 0:
@@ -68,7 +74,8 @@ class Predictor(Node):
         stamp_offset_s = param(self, "stamp_offset_s", 2.0)  # 0: off
         time_gap_s = param(self, "time_gap_s", 60.0)
         self._fault_loggers: dict = {}  # one logger per fault kind: each throttled on its own
-        self.odom_topic = self.resolve_topic_name(topics.ODOM if source == "odom" else topics.ENCODERS)
+        self.odom_topic = (topics.TF if source == "tf"
+                           else self.resolve_topic_name(topics.ODOM if source == "odom" else topics.ENCODERS))
         self.scan_topic = self.resolve_topic_name(topics.SCAN)
         self.pub = self.create_publisher(ParticleArray, topics.PARTICLES_PREDICTED, qos.pipeline())
         self.pub_pose = self.create_publisher(PoseStamped, topics.POSE, qos.pipeline())
@@ -76,16 +83,19 @@ class Predictor(Node):
         self.pose_cdr = cdr.PoseStampedWriter(self.map_frame)  # one pose per scan: published as bytes
         self._init_odom_tf()
         sub_scan = self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline(), raw=True)
-        # the correlator (+ the mapper for the scans); bag_replay (paces on pose) + observers
+        # the correlator (+ the mapper for the scans); bag_replay (paces on pose), the mapper (the
+        # trajectory save_map writes) + observers
         # that must see every pose; the scans' source (the replay starts once this is matched)
         announce_when_matched(self, [(self.pub, 1), (self.pub_scan, 2),
-                                     (self.pub_pose, 1 + param(self, "expected_observers", 0)), (sub_scan, 1)])
+                                     (self.pub_pose, 2 + param(self, "expected_observers", 0)), (sub_scan, 1)])
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
         self.create_subscription(ReplayStatus, topics.REPLAY_STALL, self._on_stall, qos.pipeline())
         wheels_cfg = None
         if source == "odom":
             self.create_subscription(Odometry, topics.ODOM, self._on_odom, qos.pipeline(10000))
+        elif source == "tf":
+            self.create_subscription(TFMessage, topics.TF, self._on_tf, qos.pipeline(10000))
         elif source == "encoders":
             wheels_cfg = declare_config(self, "wheels")
             self.create_subscription(JointState, topics.ENCODERS, self._on_encoders, qos.pipeline(10000),
@@ -115,20 +125,46 @@ class Predictor(Node):
                 {(frame("odom_frame"), frame("base_frame"))} if self.pub_tf is not None else set())
             self.create_subscription(TFMessage, topics.TF, self._on_tf, qos.pipeline(10000), raw=True)
         # every decision is the scheduler's; its actions are published as they are decided
-        self.sched = sch.PredictorScheduler(filter_cfg, motion_cfg, source, odom_sync, wheels_cfg,
+        self.sched = sch.PredictorScheduler(filter_cfg, motion_cfg, "odom" if source == "tf" else source, odom_sync, wheels_cfg,
                                             gyro=fog != "none", odom_wait_scans=odom_wait_scans,
                                             stamp_offset_s=stamp_offset_s, time_gap_s=time_gap_s,
                                             emit=self._act, laser_cfg=laser_cfg)
         self.stage = self.sched.stage
         # "final" once the last scan of the bag is posed: the run's summary waits for it
         self._publish_status = status_publisher(self, self.sched.status)
+        self._init_mount()
 
     def _init_odom_tf(self) -> None:
-        """odom -> base_link on /tf, one per scan, as bytes (the car's lidar runs at 100 Hz)."""
-        odom_frame, base_frame = param(self, "odom_frame", "odom"), param(self, "base_frame", "base_link")
-        self.pub_tf = (self.create_publisher(TFMessage, topics.TF, qos.outputs())
-                       if param(self, "publish_odom_tf", True) else None)
-        self.odom_tf_cdr = cdr.TransformWriter(odom_frame, base_frame)
+        """odom -> base_link on /tf, one per scan, as bytes (the car's lidar runs at 100 Hz); not
+        with odometry from /tf, and no more once another node publishes it (checked every second
+        while a node other than this one and the mapper publishes on /tf)."""
+        self.odom_frame, self.base_frame = param(self, "odom_frame", "odom"), param(self, "base_frame", "base_link")
+        publish = param(self, "publish_odom_tf", True) and self.source != "tf"
+        self.pub_tf = self.create_publisher(TFMessage, topics.TF, qos.outputs()) if publish else None
+        self.odom_tf_cdr = cdr.TransformWriter(self.odom_frame, self.base_frame)
+        self._own_tf_stamps: deque[int] = deque(maxlen=1000)  # stamps of what this node published
+        self._tf_watch = None
+        self._tf_check = self.create_timer(1.0, self._check_tf_publishers) if publish else None
+
+    def _check_tf_publishers(self) -> None:
+        """Someone else on /tf? Then look at what it publishes (until odom -> base is seen)."""
+        if self._tf_watch is not None:
+            return
+        ours = {self.get_name(), "mapper"}
+        if any(i.node_name not in ours for i in self.get_publishers_info_by_topic(topics.TF)):
+            self._tf_watch = self.create_subscription(TFMessage, topics.TF, self._on_foreign_tf, qos.outputs(1000))
+
+    def _on_foreign_tf(self, msg: TFMessage) -> None:
+        for t in msg.transforms:
+            if (t.header.frame_id.lstrip("/"), t.child_frame_id.lstrip("/")) == (self.odom_frame, self.base_frame) \
+                    and convert.stamp_to_ns(t.header.stamp) not in self._own_tf_stamps:
+                self.get_logger().warn(f"another node publishes {self.odom_frame} -> {self.base_frame} on /tf: "
+                                       "this node stops publishing it (publish_odom_tf)")
+                self.destroy_publisher(self.pub_tf)
+                self.destroy_subscription(self._tf_watch)
+                self.destroy_timer(self._tf_check)
+                self.pub_tf = None
+                return
 
     # ------------------------------------------------------------------ the scheduler's actions
     def _act(self, a) -> None:
@@ -136,6 +172,7 @@ class Predictor(Node):
             self.pub_pose.publish(self.pose_cdr.pack(a.pose, a.stamp))
         elif isinstance(a, sch.PublishOdomTf):
             if self.pub_tf is not None:
+                self._own_tf_stamps.append(a.stamp)
                 self.pub_tf.publish(self.odom_tf_cdr.pack(a.odom, a.stamp))
         elif isinstance(a, sch.SendCorrection):
             self.pub_scan.publish(a.payload)
@@ -168,6 +205,14 @@ class Predictor(Node):
         o = msg.pose.pose.orientation
         pose = np.array([msg.pose.pose.position.x, msg.pose.pose.position.y, float(quat_to_yaw(o.x, o.y, o.z, o.w))])
         self.sched.add_odometry(convert.stamp_to_ns(msg.header.stamp), pose)
+
+    def _on_tf(self, msg: TFMessage) -> None:
+        """Odometry from the robot's TF tree: each odom_frame -> base_frame transform."""
+        for t in msg.transforms:
+            if (t.header.frame_id.lstrip("/"), t.child_frame_id.lstrip("/")) == (self.odom_frame, self.base_frame):
+                q, p = t.transform.rotation, t.transform.translation
+                self.sched.add_odometry(convert.stamp_to_ns(t.header.stamp),
+                                        np.array([p.x, p.y, float(quat_to_yaw(q.x, q.y, q.z, q.w))]))
 
     def _on_encoders(self, raw: bytes) -> None:
         stamp, position = self._parse(cdr.joint_state_positions, raw, "encoders")
@@ -215,7 +260,34 @@ class Predictor(Node):
         else:
             self.sched.add_mount(*sample)
 
+    def _init_mount(self) -> None:
+        """mount_from_tf: scans are held until the lidar mount is decided (nodes/mount_tf.py)."""
+        self.mount = None
+        self._held: list[bytes] = []
+        wait_s = param(self, "mount_wait_s", 5.0)
+        if param(self, "mount_from_tf", False):
+            from .mount_tf import MountDecider
+            self.mount = MountDecider(self, self.base_frame, self.odom_frame, wait_s, self._release_held)
+
+    def _release_held(self) -> None:
+        held, self._held = self._held, []
+        for raw in held:
+            self._take_scan(raw)
+
     def _on_scan(self, raw: bytes) -> None:
+        if self.mount is not None and self.mount.decided is None:
+            self._held.append(raw)
+            if self.mount.frame is None:
+                from rclpy.serialization import deserialize_message
+                try:
+                    frame = deserialize_message(raw, LaserScan).header.frame_id
+                except Exception:  # unreadable: the next scan names the frame
+                    return
+                self.mount.first_scan(frame)
+            return
+        self._take_scan(raw)
+
+    def _take_scan(self, raw: bytes) -> None:
         checks = self.sched.checks
         geometry = None
         try:

@@ -22,6 +22,12 @@ GRID = "pf_slam/grid"  # mapper -> correlator: the occupancy grid after every in
 REPLAY_STATUS = "pf_slam/replay_status"  # bag_replay -> all: end of bag
 REPLAY_STALL = "pf_slam/replay_stall"  # bag_replay -> predictor: stopped at max_in_flight, counts so far
 READY = "pf_slam/ready"  # each stage, once its outputs are matched: the replay may start
+LIDAR_MOUNT = "pf_slam/lidar_mount"  # predictor -> correlator, mapper: the mount from TF (mount_from_tf), latched
 STATUS = "pf_slam/status"  # nodes -> recorder: JSON (fault counters), latched
 INITIAL_POSE = "initialpose"  # localization: rviz2's "2D Pose Estimate" (PoseWithCovarianceStamped)
 PARTICLE_CLOUD = "particlecloud"  # correlator -> users: the particles after each correction (PoseArray)
+
+# the mapper's services (live use)
+SAVE_MAP = "pf_slam/save_map"  # pf_slam_interfaces/SaveMap: map.pgm + map.yaml + trajectory.tum into a folder
+PAUSE_MAPPING = "pf_slam/pause_mapping"  # std_srvs/SetBool: true freezes the map, false resumes
+RESET = "pf_slam/reset"  # std_srvs/Trigger: a new map from the next corrected scan

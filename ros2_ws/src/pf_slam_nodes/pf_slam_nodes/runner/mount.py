@@ -50,7 +50,7 @@ class LidarMount:
         """The graph parameters that apply it: the planar path when the plane is horizontal and
         upright (filter.sensor_offset_*: exact 2D; z does not matter), the 3D projection
         otherwise (laser.extrinsic; an upside-down lidar is a mirrored planar scan there)."""
-        if self.source != "/tf_static":
+        if self.source == "parameters":
             return {}
         if self.dynamic_frame:
             return {"laser.dynamic_frame": self.dynamic_frame,
@@ -86,18 +86,23 @@ def _tf_static_tree(sample: BagSample, topics: dict) -> tuple[dict[str, tuple[st
         return tree, warnings
     for msgtype, _, raw in sample.of("/tf_static"):  # damaged mid-bag: the transforms before it count
         for tr in deserialize(raw, msgtype).transforms:
-            tt = tr.transform.translation
-            t = np.array([tt.x, tt.y, tt.z], dtype=np.float64)
-            try:
-                q = tr.transform.rotation
-                rot = quat_to_matrix(q.x, q.y, q.z, q.w)
-                if not np.isfinite(t).all():
-                    raise ValueError(f"translation {t.tolist()} is not finite")
-            except ValueError as e:
-                warnings.append(f"/tf_static: {tr.header.frame_id} -> {tr.child_frame_id} ignored: {e}")
-                continue
-            tree[tr.child_frame_id.lstrip("/")] = (tr.header.frame_id.lstrip("/"), rot, t)  # tf2 drops a leading /
+            add_transform(tree, tr, warnings)
     return tree, warnings
+
+
+def add_transform(tree: dict, tr, warnings: list[str], topic: str = "/tf_static") -> None:
+    """A geometry_msgs/TransformStamped into `tree` (child -> (parent, R, t)); a bad one is warned."""
+    tt = tr.transform.translation
+    t = np.array([tt.x, tt.y, tt.z], dtype=np.float64)
+    try:
+        q = tr.transform.rotation
+        rot = quat_to_matrix(q.x, q.y, q.z, q.w)
+        if not np.isfinite(t).all():
+            raise ValueError(f"translation {t.tolist()} is not finite")
+    except ValueError as e:
+        warnings.append(f"{topic}: {tr.header.frame_id} -> {tr.child_frame_id} ignored: {e}")
+        return
+    tree[tr.child_frame_id.lstrip("/")] = (tr.header.frame_id.lstrip("/"), rot, t)  # tf2 drops a leading /
 
 
 def _odom_child(sample: BagSample, topics: dict, odom_frame: str) -> str | None:
@@ -164,17 +169,28 @@ def lidar_mount(bag: str | BagSample, info: dict, inputs: dict[str, str], scan_f
     tree, m.warnings = _tf_static_tree(sample, topics)
     if "/tf_static" not in topics:
         return m
+    return mount_in_tree(m, tree, inputs["scan"], odom_frame,
+                         dynamic_parent=lambda frame: _dynamic_parent(sample, topics, frame))
+
+
+def mount_in_tree(m: LidarMount, tree: dict, scan_topic: str, odom_frame: str = "odom",
+                  source: str = "/tf_static", dynamic_parent=None) -> LidarMount:
+    """`m` (its base_frame, scan_frame) completed from `tree` (child -> (parent, R, t): a bag's
+    /tf_static, or what `pf-slam live` heard on /tf_static and /tf); `source` names where the
+    transforms came from; `dynamic_parent(frame)`: the frame's parent on the moving /tf, if any
+    (a lidar on a moving head)."""
+    base, scan_frame, from_tf = m.base_frame, m.scan_frame, m.base_from_tf
     if not scan_frame:
-        m.warnings.append(f"{inputs['scan']}: scans have no header.frame_id: the lidar mount is not looked up "
-                          "in /tf_static; the parameters' mount is used")
+        m.warnings.append(f"{scan_topic}: scans have no header.frame_id: the lidar mount is not looked up "
+                          f"in {source}; the parameters' mount is used")
         return m
     if scan_frame == base:
-        m.source = "/tf_static"
+        m.source = source
         m.chain = [base]
         return m
     if scan_frame not in tree:
         have = ", ".join(f"{p} -> {c}" for c, (p, _, _) in sorted(tree.items())) or "no transforms"
-        m.warnings.append(f"/tf_static has no transform to the scan's frame {scan_frame!r} (it has: {have}): "
+        m.warnings.append(f"{source} has no transform to the scan's frame {scan_frame!r} (it has: {have}): "
                           "the parameters' mount is used (filter.sensor_offset_*, laser.extrinsic; default: "
                           f"the lidar at the origin of {base})")
         return m
@@ -192,17 +208,17 @@ def lidar_mount(bag: str | BagSample, info: dict, inputs: dict[str, str], scan_f
         r_b, t_b = _compose_up(tree, up_b)
         rot, t = r_b.T @ r_s, r_b.T @ (t_s - t_b)
         up = list(reversed(up_b + list(reversed(up_s))[1:]))  # shown as base -> .. -> ancestor -> .. -> scan
-    elif _dynamic_parent(sample, topics, up[-1]) == base:
+    elif dynamic_parent is not None and dynamic_parent(up[-1]) == base:
         # a moving mount (a lidar on a head): base -> up[-1] on /tf, the static rest from here
         rot, t = _compose_up(tree, up)
         m.dynamic_frame = up[-1]
         up = up + [base]
     else:
         rot, t = _compose_up(tree, up)
-        m.warnings.append(f"/tf_static: the scan's frame {scan_frame!r} hangs off {up[-1]!r}, not the robot's base "
+        m.warnings.append(f"{source}: the scan's frame {scan_frame!r} hangs off {up[-1]!r}, not the robot's base "
                           f"frame {base!r} ({'child of ' + odom_frame + ' in /tf' if from_tf else 'base_frame'}): "
                           f"the mount is taken relative to {up[-1]!r}")
-    m.source, m.rot, m.t, m.chain = "/tf_static", rot, t, list(reversed(up))
+    m.source, m.rot, m.t, m.chain = source, rot, t, list(reversed(up))
     return m
 
 

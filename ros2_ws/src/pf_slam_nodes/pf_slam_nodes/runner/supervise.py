@@ -144,12 +144,13 @@ def remove_stale_shm(shm: Path = Path("/dev/shm"), min_age_s: float = 2.0) -> li
 
 
 def _spawn(per_node: dict[str, dict[str, Any]], dom: RosDomain, out: Path,
-           remaps: dict[str, str] | None = None) -> dict[str, subprocess.Popen]:
+           remaps: dict[str, str] | None = None, follow_clock: bool = False) -> dict[str, subprocess.Popen]:
     """Start one process per node, each with its own parameter file, in their own session: a
     Ctrl-C in the terminal reaches only this process, which stops them in order. They also
     die with it (PF_SLAM_PARENT_PID, see nodes.common.run_node), so none is left orphaned.
     They run on the run's domain `dom` (RosDomain.child_env) and inherit its lock, so an
-    isolated domain stays held until the last of them is gone."""
+    isolated domain stays held until the last of them is gone. Their use_sim_time is false unless
+    `follow_clock` (`pf-slam live`: each switches to /clock when one is published)."""
     logs = out / "logs"
     logs.mkdir(parents=True, exist_ok=True)
     env = dom.child_env()
@@ -158,7 +159,8 @@ def _spawn(per_node: dict[str, dict[str, Any]], dom: RosDomain, out: Path,
     procs = {}
     for name in per_node:  # parameter files next to the logs: what each process ran with
         pfile = logs / f"{name}.params.yaml"
-        pfile.write_text(yaml.safe_dump({name: {"ros__parameters": unflatten(per_node[name])}}))
+        ros_params = ({} if follow_clock else {"use_sim_time": False}) | unflatten(per_node[name])
+        pfile.write_text(yaml.safe_dump({name: {"ros__parameters": ros_params}}))
         with open(logs / f"{name}.log", "w") as log:
             procs[name] = subprocess.Popen(
                 [sys.executable, "-m", f"pf_slam_nodes.nodes.{name}", "--ros-args", "--params-file", str(pfile)]
