@@ -37,6 +37,11 @@ Publishes
   ``frames_received`` (complete pairs), ``frames_processed``, ``frames_skipped`` (replaced
   by a newer pair while queued: load), ``frames_dropped`` (no pose / calibration for them),
   ``ms_per_frame``, ``final``.
+* ``pf_slam/texture_progress`` (``std_msgs/UInt32MultiArray``, latched): ``[pairs finished
+  (processed + skipped + dropped), pairs waiting for their pose]`` after every change: in
+  ``--rate max`` the replay holds the next pair back while ``max_pairs_in_flight`` pairs are
+  neither finished nor waiting for a pose, so every pair is textured (none skipped) and the
+  same pairs are textured on every run.
 
 Threading: the subscription callbacks only store messages; one worker thread does the
 debayering, stereo matching, accumulation and the timer's rendering, so the node never blocks
@@ -64,7 +69,7 @@ from nav_msgs.msg import MapMetaData, OccupancyGrid
 from pf_slam_interfaces.msg import ReplayStatus
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
-from std_msgs.msg import String
+from std_msgs.msg import String, UInt32MultiArray
 from geometry_msgs.msg import PoseStamped
 from tf2_msgs.msg import TFMessage
 
@@ -174,6 +179,8 @@ class TextureNode(Node):
         self.pub_texture = self.create_publisher(Image, TEXTURE, qos.latched())
         self.pub_meta = self.create_publisher(MapMetaData, TEXTURE_METADATA, qos.latched())
         self.pub_status = self.create_publisher(String, TEXTURE_STATUS, qos.latched())
+        self.pub_progress = self.create_publisher(UInt32MultiArray, topics.TEXTURE_PROGRESS, qos.latched())
+        self._progress_sent: tuple[int, int] = (-1, -1)
         announce_when_matched(self, [(self.pub_texture, param(self, "expected_observers", 0))])
         img_qos = qos.pipeline(max(4 * self.max_pending_pairs, 20))
         self.create_subscription(Image, left_topic, lambda m: self._on_image("left", m), img_qos)
@@ -280,7 +287,12 @@ class TextureNode(Node):
         return True
 
     def _release(self) -> None:
-        """Move the pairs whose pose is known (interpolated) to the worker's queue."""
+        """Move the pairs whose pose is known (interpolated) to the worker's queue; then the
+        progress (pf_slam/texture_progress) if it changed."""
+        self._release_ready()
+        self._publish_progress()
+
+    def _release_ready(self) -> None:
         if not self._awaiting or not self._pose_t or not self._ensure_rig():
             return
         t = np.fromiter(self._pose_t, dtype=np.int64, count=len(self._pose_t))
@@ -304,6 +316,15 @@ class TextureNode(Node):
                     self._ready.popleft()
                     self.frames_skipped += 1
                 self._cond.notify()
+
+    def _publish_progress(self) -> None:
+        """``[finished, waiting for a pose]`` on pf_slam/texture_progress, when it changed."""
+        with self.lock:
+            now = (self.frames_processed + self.frames_skipped + self.frames_dropped, len(self._awaiting))
+            if now == self._progress_sent:
+                return
+            self._progress_sent = now
+        self.pub_progress.publish(UInt32MultiArray(data=list(now)))
 
     # ------------------------------------------------------------------ worker
     def _work(self) -> None:
@@ -339,6 +360,7 @@ class TextureNode(Node):
                 with self.lock:
                     self._busy = False
                     self._last_activity = time.monotonic()
+                self._publish_progress()
 
     def _process(self, pair: _Pair) -> None:
         t0 = time.perf_counter()
@@ -431,6 +453,7 @@ class TextureNode(Node):
                 self._want_render = True
                 self._cond.notify()
         if finish:
+            self._publish_progress()
             self.get_logger().info(f"final texture: {json.dumps(self.counters())}")
 
     def wait_idle(self, timeout_s: float = 10.0) -> bool:
