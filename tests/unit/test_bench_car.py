@@ -18,12 +18,20 @@ def test_true_fog_bias_per_second_and_table(tmp_path):
                map_precision=0.7, map_recall=0.4, wall_s=30.0, rtf=10.0, ceiling_rtf=60.0,
                ratio_to_ceiling=0.167, dropped=0)
     line = car.format_table([row]).splitlines()[2]
-    assert line.startswith("| 3 | 1 | 300 |")
+    assert line.startswith("| 3 | – | 1 | 300 |")
     assert "| 0.250 | 2.500 | 10.0× | 0.300 | 190 / 200 |" in line
     worse = dict(row, ate_m=0.9, rtf=8.0, dropped=2)
     assert car.targets_line([row, worse]) == (
-        "2 runs: ATE mean 0.575 m, median 0.575 m, worst 0.900 m; ATE <= 0.5 m and >= 3x below raw dead "
+        "2 runs: ATE mean 0.575 m, median 0.575 m, worst 0.900 m; ATE <= 0.35 m and >= 3x below raw dead "
         "reckoning in 1 of 2; >= 10x real time in 1 of 2 (RTF 8.0-10.0x); dropped 2")
+    tex = dict(row, world=2, images=True, pairs=300, pairs_textured=300, pairs_skipped=0, colour_error=10.5,
+               coverage=0.8, texture_ms_per_pair=120.0, texture_ms_stages={"disparity": 40.0, "ground": 30.0})
+    assert car.targets_line([tex, dict(tex, colour_error=13.0)]).endswith(
+        "; stereo pairs textured 600 of 600 (0 skipped); texture colour error median 11.8, worst 13.0 "
+        "(<= 12 in 1 of 2), coverage median 0.80")
+    t = car.format_texture_table([tex]).splitlines()
+    assert t[0].endswith("| ms / pair | disparity ms | ground ms |")
+    assert t[2] == "| 3 | 2 | 1 | 300 | 300 | 0 | 10.5 | 0.80 | 120 | 40 | 30 |"
 
 
 def _images(bag):

@@ -168,6 +168,7 @@ class TextureNode(Node):
         self.frames_skipped = 0
         self.frames_dropped = 0
         self.ms_total = 0.0
+        self.ms_stages: dict[str, float] = {}  # summed per stage (StereoTexturer timings + "accumulate")
         self.last_stamp_ns = 0
         self.last_error = ""
         self._replay_done = False
@@ -372,8 +373,12 @@ class TextureNode(Node):
         with self.lock:
             cells = (self.texmap.anchor.copy(), self.texmap.cell_m)
         res = self._texturer.process(left, right, pair.pose, enc, cells=cells)
+        t1 = time.perf_counter()
         with self.lock:
             self.texmap.add(res.xy_world, res.rgb)
+            for k, v in {**res.timings_ms, "accumulate": 1e3 * (time.perf_counter() - t1)}.items():
+                if k != "total":
+                    self.ms_stages[k] = self.ms_stages.get(k, 0.0) + float(v)
             self._dirty = True
             self.frames_processed += 1
             self.ms_total += 1e3 * (time.perf_counter() - t0)
@@ -391,6 +396,8 @@ class TextureNode(Node):
                 "frames_pending": len(self._awaiting) + len(self._ready) + int(self._busy),
                 "ms_per_frame": round(self.ms_total / self.frames_processed, 1)
                 if self.frames_processed else None,
+                "ms_stages": {k: round(v / self.frames_processed, 1) for k, v in self.ms_stages.items()}
+                if self.frames_processed else {},
                 "texture_cells": self.texmap.cell_count(),
                 "texture_memory_mb": round(self.texmap.memory_bytes / 2 ** 20, 1),
                 "final": self._final_sent,
