@@ -51,3 +51,38 @@ def test_cached_bag_with_images_is_converted_again(tmp_path):
     stamp = (bag / "metadata.yaml").stat().st_mtime_ns
     car._bench_bag(data, bag)
     assert (bag / "metadata.yaml").stat().st_mtime_ns == stamp  # clean: reused as it is
+
+
+def test_texture_score_of_a_perfect_and_a_shifted_texture(tmp_path):
+    """texture_score reads texture.png (north up, /map geometry) against the floor truth: the truth
+    itself, averaged into the run's 0.2 m cells, scores ~0 and covers what the camera saw; the same
+    texture 1 m off scores far worse."""
+    import cv2
+
+    from pf_slam_nodes.core.texture import north_up_bgr
+    from pf_slam_nodes.io.mapfile import read_map, write_map
+    from pf_slam_nodes.io.texture_files import read_floor_texture
+
+    data = tmp_path / "drive"
+    simulate_car(data, seed=2, duration_s=2.0, stereo_rate_hz=1.0)
+    gt, gres, gorig = read_floor_texture(data / "ground_truth" / "floor_texture.png")
+    occ, res, origin = read_map(data / "ground_truth" / "occupancy.yaml")
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    write_map(run_dir, occ, res, origin)
+    k = int(round(res / gres))
+
+    def cells(shift_cells: int) -> np.ndarray:  # truth texels averaged into the run's cells
+        h, w = occ.shape
+        out = np.zeros((h, w, 3), np.uint8)
+        oi, oj = int(round((origin[0] - gorig[0]) / gres)), int(round((origin[1] - gorig[1]) / gres))
+        blk = gt[oj:oj + h * k, oi + shift_cells:oi + shift_cells + w * k].astype(np.float64)
+        hh, ww = blk.shape[0] // k, blk.shape[1] // k
+        out[:hh, :ww] = np.rint(blk[:hh * k, :ww * k].reshape(hh, k, ww, k, 3).mean(axis=(1, 3)))
+        return np.maximum(out, 1)
+
+    cv2.imwrite(str(run_dir / "texture.png"), north_up_bgr(cells(0)))
+    good = car.texture_score(run_dir, data)
+    assert good["colour_error"] < 1.0 and good["coverage"] > 0.99, good
+    cv2.imwrite(str(run_dir / "texture.png"), north_up_bgr(cells(10)))
+    assert car.texture_score(run_dir, data)["colour_error"] > 5.0 + good["colour_error"]
