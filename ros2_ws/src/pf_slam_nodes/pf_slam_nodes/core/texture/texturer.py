@@ -100,6 +100,9 @@ class FrameResult:
     n_fill: int = 0
 
 
+_DEMOSAIC_MARGIN = 8  # rows above the first processed one demosaiced with it (even: Bayer phase)
+
+
 class StereoTexturer:
     """Turns stereo pairs into coloured ground samples (see the module docstring).
 
@@ -156,12 +159,15 @@ class StereoTexturer:
         (None when not rectified here), and ``timings`` (ms, plus ``'rectified_here'``).
         """
         t0 = time.perf_counter()
-        lrgb = debayer(left, encoding, self.cfg.demosaic)
-        lg, rg = grey(left, encoding), grey(right, encoding)
-        for img in (lrgb, rg):
+        for img in (left, right):
             if img.shape[:2] != (self.rig.height, self.rig.width):
                 raise ValueError(f'image is {img.shape[1]} x {img.shape[0]}, the calibration '
                                  f'{self.rig.width} x {self.rig.height}')
+        # images that need no rectification: only the processed rows (and a margin for the
+        # demosaicing neighbourhood, even to keep the Bayer phase) are demosaiced
+        crop = max(self.first_row - _DEMOSAIC_MARGIN, 0) if self._rectify is False else 0
+        lrgb = debayer(left[crop:], encoding, self.cfg.demosaic)
+        lg, rg = grey(left[crop:], encoding), grey(right[crop:], encoding)
         t1 = time.perf_counter()
         if self._rectify is None:
             already = detect_rectified(lg, rg, self.rig)
@@ -178,7 +184,7 @@ class StereoTexturer:
             lrgb, lg, rg = outs
             valid = self.rig.rectified_valid('left')[v0:]
         else:
-            lrgb, lg, rg = lrgb[v0:], lg[v0:], rg[v0:]
+            lrgb, lg, rg = lrgb[v0 - crop:], lg[v0 - crop:], rg[v0 - crop:]
         t2 = time.perf_counter()
         return lrgb, lg, rg, valid, {'debayer': 1e3 * (t1 - t0), 'rectify': 1e3 * (t2 - t1),
                                      'rectified_here': rect}
