@@ -31,9 +31,12 @@ bench-scaling: setup   ## particles 10-1000 (intel_2726) and grids 500²-4000² 
 bench-thor: setup   ## three simulated 60 s THOR walks (moving head, RGB-D) x filter seeds 0 and 1: ATE, map F1, texture colour error, RTF
 	$(BIN)/pf-slam bench thor --seeds 0 1 2 --filter-seeds 0 1 --out runs/bench --results docs/results.md
 
-bench-car: setup   ## five simulated 300 s car drives x filter seeds 0 and 1 (simulated once; ~6 min here): ATE, DR, map F1, RTF vs ceiling
-	$(BIN)/pf-slam bench car --seeds 0 1 2 3 4 --filter-seeds 0 1 --out runs/bench --results docs/results.md
-	$(BIN)/pf-slam bench car --seeds 0 --out runs/bench --processes multi --results docs/results.md
+CAR_IMAGES ?= 1
+CAR_FLAGS = $(if $(filter 0,$(CAR_IMAGES)),--no-images,)
+bench-car: setup   ## car drives with stereo at 1 Hz (CAR_IMAGES=0: without): five 300 s drives x filter seeds 0, 1 (ATE, DR, map F1, RTF vs ceiling, pairs textured, colour error, coverage); five worlds not tuned on x 2 filter seeds; one process per node
+	$(BIN)/pf-slam bench car --seeds 0 1 2 3 4 --filter-seeds 0 1 $(CAR_FLAGS) --out runs/bench --results docs/results.md
+	$(BIN)/pf-slam bench car --seeds 0 --worlds 1 2 3 4 5 --filter-seeds 0 1 $(CAR_FLAGS) --out runs/bench --results docs/results.md
+	$(BIN)/pf-slam bench car --seeds 0 $(CAR_FLAGS) --out runs/bench --processes multi --results docs/results.md
 
 lock: setup   ## re-pin requirements/constraints.txt from the current venv
 	@{ echo "# Lock file for the pip-only install: exact versions measured to work together (ROS 2 Jazzy wheels,"; \

@@ -18,12 +18,20 @@ def test_true_fog_bias_per_second_and_table(tmp_path):
                map_precision=0.7, map_recall=0.4, wall_s=30.0, rtf=10.0, ceiling_rtf=60.0,
                ratio_to_ceiling=0.167, dropped=0)
     line = car.format_table([row]).splitlines()[2]
-    assert line.startswith("| 3 | 1 | 300 |")
+    assert line.startswith("| 3 | – | 1 | 300 |")
     assert "| 0.250 | 2.500 | 10.0× | 0.300 | 190 / 200 |" in line
     worse = dict(row, ate_m=0.9, rtf=8.0, dropped=2)
     assert car.targets_line([row, worse]) == (
-        "2 runs: ATE mean 0.575 m, median 0.575 m, worst 0.900 m; ATE <= 0.5 m and >= 3x below raw dead "
+        "2 runs: ATE mean 0.575 m, median 0.575 m, worst 0.900 m; ATE <= 0.35 m and >= 3x below raw dead "
         "reckoning in 1 of 2; >= 10x real time in 1 of 2 (RTF 8.0-10.0x); dropped 2")
+    tex = dict(row, world=2, images=True, pairs=300, pairs_textured=300, pairs_skipped=0, colour_error=10.5,
+               coverage=0.8, texture_ms_per_pair=120.0, texture_ms_stages={"disparity": 40.0, "ground": 30.0})
+    assert car.targets_line([tex, dict(tex, colour_error=13.0)]).endswith(
+        "; stereo pairs textured 600 of 600 (0 skipped); texture colour error median 11.8, worst 13.0 "
+        "(<= 12 in 1 of 2), coverage median 0.80")
+    t = car.format_texture_table([tex]).splitlines()
+    assert t[0].endswith("| ms / pair | disparity ms | ground ms |")
+    assert t[2] == "| 3 | 2 | 1 | 300 | 300 | 0 | 10.5 | 0.80 | 120 | 40 | 30 |"
 
 
 def _images(bag):
@@ -43,3 +51,38 @@ def test_cached_bag_with_images_is_converted_again(tmp_path):
     stamp = (bag / "metadata.yaml").stat().st_mtime_ns
     car._bench_bag(data, bag)
     assert (bag / "metadata.yaml").stat().st_mtime_ns == stamp  # clean: reused as it is
+
+
+def test_texture_score_of_a_perfect_and_a_shifted_texture(tmp_path):
+    """texture_score reads texture.png (north up, /map geometry) against the floor truth: the truth
+    itself, averaged into the run's 0.2 m cells, scores ~0 and covers what the camera saw; the same
+    texture 1 m off scores far worse."""
+    import cv2
+
+    from pf_slam_nodes.core.texture import north_up_bgr
+    from pf_slam_nodes.io.mapfile import read_map, write_map
+    from pf_slam_nodes.io.texture_files import read_floor_texture
+
+    data = tmp_path / "drive"
+    simulate_car(data, seed=2, duration_s=2.0, stereo_rate_hz=1.0)
+    gt, gres, gorig = read_floor_texture(data / "ground_truth" / "floor_texture.png")
+    occ, res, origin = read_map(data / "ground_truth" / "occupancy.yaml")
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    write_map(run_dir, occ, res, origin)
+    k = int(round(res / gres))
+
+    def cells(shift_cells: int) -> np.ndarray:  # truth texels averaged into the run's cells
+        h, w = occ.shape
+        out = np.zeros((h, w, 3), np.uint8)
+        oi, oj = int(round((origin[0] - gorig[0]) / gres)), int(round((origin[1] - gorig[1]) / gres))
+        blk = gt[oj:oj + h * k, oi + shift_cells:oi + shift_cells + w * k].astype(np.float64)
+        hh, ww = blk.shape[0] // k, blk.shape[1] // k
+        out[:hh, :ww] = np.rint(blk[:hh * k, :ww * k].reshape(hh, k, ww, k, 3).mean(axis=(1, 3)))
+        return np.maximum(out, 1)
+
+    cv2.imwrite(str(run_dir / "texture.png"), north_up_bgr(cells(0)))
+    good = car.texture_score(run_dir, data)
+    assert good["colour_error"] < 1.0 and good["coverage"] > 0.99, good
+    cv2.imwrite(str(run_dir / "texture.png"), north_up_bgr(cells(10)))
+    assert car.texture_score(run_dir, data)["colour_error"] > 5.0 + good["colour_error"]

@@ -144,6 +144,11 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--filter-seeds", type=int, nargs="*", default=[0],
                    help="car: the filter's random streams (filter.seed) to run on each drive")
     b.add_argument("--processes", choices=["single", "multi"], default="single")
+    b.add_argument("--no-images", action="store_true",
+                   help="car: bags without the stereo images (no texture node); default: stereo at 1 Hz")
+    b.add_argument("--worlds", type=int, nargs="*",
+                   help="car: simulate each seed in these worlds (pf-slam simulate --world N: layouts and "
+                        "error levels not tuned on); default: the standard world")
     b.add_argument("--sweep-particles", type=int, nargs="*",
                    help="scaling: particle counts on intel_2726 (default 10 30 100 300 1000)")
     b.add_argument("--sweep-grid", type=int, nargs="*",
@@ -293,9 +298,13 @@ def _bench(args) -> tuple[str | None, str, str]:
         return "thor", "THOR humanoid: simulated walks (moving head, RGB-D texture)", table
     if args.what == "car":
         from pf_slam_tools.bench import car
-        table = car.main(args.out, tuple(args.seeds), args.duration or 300.0, args.processes, args.particles,
-                         tuple(args.filter_seeds))
-        return f"car_{args.processes}", f"The car: simulated drives ({args.processes} process)", table
+        worlds = tuple(args.worlds) if args.worlds else (None,)
+        table = car.main(args.out, tuple(args.seeds), args.duration, args.processes, args.particles,
+                         tuple(args.filter_seeds), images=not args.no_images, worlds=worlds)
+        name = f"car_{args.processes}" + ("_noimages" if args.no_images else "") + ("_worlds" if args.worlds else "")
+        return name, (f"The car: simulated drives ({args.processes} process, "
+                      f"{'no images' if args.no_images else 'stereo at 1 Hz, texture node on'}"
+                      f"{', worlds not tuned on' if args.worlds else ''})"), table
     if args.what == "ceiling":
         from pf_slam_tools.bench.ceiling import replay_ceiling
         if not args.bag:

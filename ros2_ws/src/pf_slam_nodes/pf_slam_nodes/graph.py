@@ -99,6 +99,10 @@ def _plan(bag: str, params_file: str | None, rate: str, processes: str, override
         # arrival times say nothing about the clocks at --rate max (the bag's stamps were checked
         # before the run: inspect_stamps)
         per_node["predictor"].setdefault("stamp_offset_s", 0.0)
+        if texture:  # pace the image pairs on the texture node as the scans on the poses: none skipped
+            per_node["bag_replay"].setdefault("image_topic", inputs.get("stereo_left") or inputs["rgbd_rgb"])
+            for key in ("queue_depth", "max_pending_pairs"):  # the replay bounds what is in flight
+                per_node["texture"][key] = max(int(per_node["texture"].get(key, 0)), 1000)
     return RunPlan(bag=bag, params_file=params_file, rate=rate, processes=processes, record=record, info=info,
                    inputs=inputs, texture=texture, node_names=node_names, per_node=per_node, prof=prof,
                    mount_text=mount_text, mount_notes=mount_notes, checks=checks, **how)

@@ -5,7 +5,11 @@ order. Rates: `rate:=max` paces on the pipeline: at most `max_in_flight` scans a
 and not yet posed (counted on pose, one per scan), so nothing is dropped and the run is
 reproducible; each time it stops there it says so on pf_slam/replay_stall (ReplayStatus with
 done=false and the counts so far: a predictor that has all of them and still lacks a scan's
-odometry knows that it will not come before it poses that scan); `rate:=1` is real time, `rate:=N` N times real time. At the end of the bag the
+odometry knows that it will not come before it poses that scan); with `image_topic` set (the
+texture node's left stereo topic, `pf-slam run` sets it when the texture node runs), `rate:=max`
+also paces on the texture node: the next image of that topic waits while `max_pairs_in_flight`
+pairs are published and neither finished nor waiting for their pose (pf_slam/texture_progress),
+so no stereo pair is skipped and every run textures the same pairs; `rate:=1` is real time, `rate:=N` N times real time. At the end of the bag the
 number of messages published per topic goes out on pf_slam/replay_status (latched).
 
 A bag damaged mid-file ends the replay where the damage is: what was read before it has been
@@ -24,7 +28,7 @@ from pf_slam_interfaces.msg import ReplayStatus
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rosgraph_msgs.msg import Clock
-from std_msgs.msg import String
+from std_msgs.msg import String, UInt32MultiArray
 
 from ..io.bag import BagReadError, bag_info, read_bag
 from ..ros import cdr, qos, topics
@@ -78,6 +82,13 @@ class BagReplay(Node):
         self.rate = parse_rate(str(param(self, "rate", "max")))
         self.max_in_flight = param(self, "max_in_flight", 100)
         self.scan_topic = param(self, "scan_topic", "/scan")
+        self.image_topic = param(self, "image_topic", "")
+        self.max_pairs_in_flight = param(self, "max_pairs_in_flight", 1)
+        if self.max_pairs_in_flight < 1:
+            raise ValueError(f"parameter 'max_pairs_in_flight' must be >= 1, got {self.max_pairs_in_flight}")
+        self.images_published = 0
+        self.texture_progress = (0, 0)  # [pairs finished, pairs waiting for a pose] (texture node)
+        self.texture_waits = 0  # times the replay stopped for the texture node
         self.clock_period_ns = int(param(self, "clock_period_s", 0.01) * 1e9)
         self.start_delay_s = float(param(self, "start_delay_s", 0.0))
         self.ready_at: float | None = None  # when graph_ready() first held (monotonic)
@@ -101,6 +112,9 @@ class BagReplay(Node):
         self.error: str | None = None  # the damage that ended the replay early
         self.create_subscription(PoseStamped, topics.POSE, self._on_progress, qos.pipeline(), raw=True)
         self.create_subscription(String, topics.READY, self._on_ready, qos.latched(depth=10))
+        if self.image_topic:
+            self.create_subscription(UInt32MultiArray, topics.TEXTURE_PROGRESS, self._on_texture_progress,
+                                     qos.latched())
         self.messages = read_bag(self.bag)
         self.pending: tuple[str, str, int, bytes] | None = None
         self.published: dict[str, int] = {t: 0 for t in info["topics"]}
@@ -117,6 +131,18 @@ class BagReplay(Node):
         self.scans_processed += 1
         if self.timer.is_canceled() and not self.done:
             self.timer.reset()
+
+    def _on_texture_progress(self, msg: UInt32MultiArray) -> None:
+        if len(msg.data) >= 2:
+            self.texture_progress = (int(msg.data[0]), int(msg.data[1]))
+        if self.timer.is_canceled() and not self.done:
+            self.timer.reset()
+
+    def _texture_busy(self) -> bool:
+        """True while `max_pairs_in_flight` published pairs are neither finished by the texture
+        node nor waiting there for their pose (those need later scans: never held back)."""
+        done, waiting = self.texture_progress
+        return self.images_published - done - waiting >= self.max_pairs_in_flight
 
     def _on_ready(self, msg: String) -> None:
         self.ready_nodes.add(msg.data)
@@ -164,6 +190,10 @@ class BagReplay(Node):
                     stall.counts.append(self.scans_processed)
                     self.pub_stall.publish(stall)
                 return
+            if topic == self.image_topic and self.rate is None and self._texture_busy():
+                self.timer.cancel()  # resumed by _on_texture_progress
+                self.texture_waits += 1
+                return
             if self.rate is not None:
                 due = self.t0_wall + (stamp_ns - self.t0_bag) / 1e9 / self.rate
                 if time.monotonic() < due:
@@ -175,6 +205,8 @@ class BagReplay(Node):
             self.published[topic] += 1
             if topic == self.scan_topic:
                 self.scans_published += 1
+            elif topic == self.image_topic:
+                self.images_published += 1
             if stamp_ns - self.last_clock_ns >= self.clock_period_ns or topic == self.scan_topic:
                 self.pub_clock.publish(cdr.clock_bytes(stamp_ns))  # bytes: no message object per publish
                 self.last_clock_ns = stamp_ns

@@ -43,6 +43,11 @@ PARAM_DOCS: dict[str, str] = {
     "restamp": "topics whose header stamps are rewritten as replayed: 'TOPIC=record' (the bag's record time) or "
                "'TOPIC=NS' (shifted by NS ns), comma-separated; pf-slam run sets it when the bag's stamps cannot be right",
     "max_in_flight": "rate max: at most this many scans published and not yet posed",
+    "image_topic": "rate max: the texture node's left stereo topic; its next image waits while max_pairs_in_flight "
+                   "pairs are with the texture node and not waiting for a pose (no pair skipped); '' = no pacing "
+                   "on images (pf-slam run sets it when the texture node runs)",
+    "max_pairs_in_flight": "rate max, with image_topic: stereo pairs the texture node may hold (being worked on "
+                           "or queued) before the replay waits",
     "scan_topic": "the bag's LaserScan topic (pacing, end-of-bag counts)",
     "scan_subscribers": "subscriptions the scan topic must have matched before the replay starts",
     "clock_period_s": "/clock goes out at least this often in bag time, and with every scan (s)",

@@ -26,8 +26,8 @@ _FRAMES = {"map_frame": "map", "odom_frame": "odom", "base_frame": "base_link"}
 #: Plain (non-config) parameters each node declares, with their defaults.
 NODE_PLAIN: dict[str, dict[str, Any]] = {
     "bag_replay": {"bag": "", "rate": "max", "max_in_flight": 100, "scan_topic": "/scan",
-                   "clock_period_s": 0.01, "wait_for": ["predictor", "correlator", "mapper"], "restamp": "",
-                   "start_delay_s": 0.0},
+                   "image_topic": "", "max_pairs_in_flight": 1, "clock_period_s": 0.01,
+                   "wait_for": ["predictor", "correlator", "mapper"], "restamp": "", "start_delay_s": 0.0},
     "predictor": {"map_frame": "map", "odometry_source": "odom", "odom_sync": "interpolate",
                   "time_gap_s": 60.0, "expected_observers": 0, "fog_format": "none",
                   "odom_frame": "odom", "base_frame": "base_link", "publish_odom_tf": True,

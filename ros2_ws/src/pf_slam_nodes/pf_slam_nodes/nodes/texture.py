@@ -37,6 +37,11 @@ Publishes
   ``frames_received`` (complete pairs), ``frames_processed``, ``frames_skipped`` (replaced
   by a newer pair while queued: load), ``frames_dropped`` (no pose / calibration for them),
   ``ms_per_frame``, ``final``.
+* ``pf_slam/texture_progress`` (``std_msgs/UInt32MultiArray``, latched): ``[pairs finished
+  (processed + skipped + dropped), pairs waiting for their pose]`` after every change: in
+  ``--rate max`` the replay holds the next pair back while ``max_pairs_in_flight`` pairs are
+  neither finished nor waiting for a pose, so every pair is textured (none skipped) and the
+  same pairs are textured on every run.
 
 Threading: the subscription callbacks only store messages; one worker thread does the
 debayering, stereo matching, accumulation and the timer's rendering, so the node never blocks
@@ -73,7 +78,7 @@ from nav_msgs.msg import MapMetaData, OccupancyGrid
 from pf_slam_interfaces.msg import ReplayStatus
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
-from std_msgs.msg import String
+from std_msgs.msg import String, UInt32MultiArray
 from geometry_msgs.msg import PoseStamped
 from tf2_msgs.msg import TFMessage
 
@@ -201,6 +206,7 @@ class TextureNode(Node):
         self.frames_dropped = 0
         self.plane_fits = 0  # depth mode: pairs whose floor fit passed the kinematic check
         self.ms_total = 0.0
+        self.ms_stages: dict[str, float] = {}  # summed per stage (StereoTexturer timings + "accumulate")
         self.last_stamp_ns = 0
         self.last_error = ""
         self._replay_done = False
@@ -212,6 +218,8 @@ class TextureNode(Node):
         self.pub_texture = self.create_publisher(Image, TEXTURE, qos.latched())
         self.pub_meta = self.create_publisher(MapMetaData, TEXTURE_METADATA, qos.latched())
         self.pub_status = self.create_publisher(String, TEXTURE_STATUS, qos.latched())
+        self.pub_progress = self.create_publisher(UInt32MultiArray, topics.TEXTURE_PROGRESS, qos.latched())
+        self._progress_sent: tuple[int, int] = (-1, -1)
         announce_when_matched(self, [(self.pub_texture, param(self, "expected_observers", 0))])
         img_qos = qos.pipeline(max(4 * self.max_pending_pairs, 20))
         if self.mode == "depth":
@@ -411,7 +419,12 @@ class TextureNode(Node):
         return True
 
     def _release(self) -> None:
-        """Move the pairs whose pose is known (interpolated) to the worker's queue."""
+        """Move the pairs whose pose is known (interpolated) to the worker's queue; then the
+        progress (pf_slam/texture_progress) if it changed."""
+        self._release_ready()
+        self._publish_progress()
+
+    def _release_ready(self) -> None:
         ready = self._ensure_camera() if self.mode == "depth" else self._ensure_rig()
         if not self._awaiting or not self._pose_t or not ready:
             return
@@ -450,6 +463,15 @@ class TextureNode(Node):
                     self.frames_skipped += 1
                 self._cond.notify()
 
+    def _publish_progress(self) -> None:
+        """``[finished, waiting for a pose]`` on pf_slam/texture_progress, when it changed."""
+        with self.lock:
+            now = (self.frames_processed + self.frames_skipped + self.frames_dropped, len(self._awaiting))
+            if now == self._progress_sent:
+                return
+            self._progress_sent = now
+        self.pub_progress.publish(UInt32MultiArray(data=list(now)))
+
     # ------------------------------------------------------------------ worker
     def _work(self) -> None:
         if self.worker_nice > 0:  # Linux: per-thread niceness; the SLAM threads come first
@@ -484,6 +506,7 @@ class TextureNode(Node):
                 with self.lock:
                     self._busy = False
                     self._last_activity = time.monotonic()
+                self._publish_progress()
 
     def _process(self, pair: _Pair) -> None:
         if self.mode == "depth":
@@ -497,8 +520,12 @@ class TextureNode(Node):
         with self.lock:
             cells = (self.texmap.anchor.copy(), self.texmap.cell_m)
         res = self._texturer.process(left, right, pair.pose, enc, cells=cells)
+        t1 = time.perf_counter()
         with self.lock:
             self.texmap.add(res.xy_world, res.rgb)
+            for k, v in {**res.timings_ms, "accumulate": 1e3 * (time.perf_counter() - t1)}.items():
+                if k != "total":
+                    self.ms_stages[k] = self.ms_stages.get(k, 0.0) + float(v)
             self._dirty = True
             self.frames_processed += 1
             self.ms_total += 1e3 * (time.perf_counter() - t0)
@@ -533,6 +560,8 @@ class TextureNode(Node):
                 "frames_pending": len(self._awaiting) + len(self._ready) + int(self._busy),
                 "ms_per_frame": round(self.ms_total / self.frames_processed, 1)
                 if self.frames_processed else None,
+                "ms_stages": {k: round(v / self.frames_processed, 1) for k, v in self.ms_stages.items()}
+                if self.frames_processed else {},
                 "texture_cells": self.texmap.cell_count(),
                 "texture_memory_mb": round(self.texmap.memory_bytes / 2 ** 20, 1),
                 "final": self._final_sent,
@@ -597,6 +626,7 @@ class TextureNode(Node):
                 self._want_render = True
                 self._cond.notify()
         if finish:
+            self._publish_progress()
             self.get_logger().info(f"final texture: {json.dumps(self.counters())}")
 
     def wait_idle(self, timeout_s: float = 10.0) -> bool:

@@ -23,6 +23,9 @@ REPLAY_STATUS = "pf_slam/replay_status"  # bag_replay -> all: end of bag
 REPLAY_STALL = "pf_slam/replay_stall"  # bag_replay -> predictor: stopped at max_in_flight, counts so far
 READY = "pf_slam/ready"  # each stage, once its outputs are matched: the replay may start
 LIDAR_MOUNT = "pf_slam/lidar_mount"  # predictor -> correlator, mapper: the mount from TF (mount_from_tf), latched
+# texture -> bag_replay: [pairs finished (processed, skipped or dropped), pairs waiting for their
+# pose]; in --rate max the replay holds the next stereo pair back while one is being worked on
+TEXTURE_PROGRESS = "pf_slam/texture_progress"
 STATUS = "pf_slam/status"  # nodes -> recorder: JSON (fault counters), latched
 INITIAL_POSE = "initialpose"  # localization: rviz2's "2D Pose Estimate" (PoseWithCovarianceStamped)
 PARTICLE_CLOUD = "particlecloud"  # correlator -> users: the particles after each correction (PoseArray)

@@ -5,7 +5,10 @@ bag_replay (the real node, `rate:=max`) publishes every topic of the bag into th
 standing in for predictor, correlator and mapper: each subscribes (serialized, no
 deserialization) to what the real node subscribes to; the predictor's sink answers every scan
 with one pose (a pre-serialized PoseStamped), which is what the replay paces on. The real
-graph cannot be faster than this; `pf-slam bench` prints each run's ratio to it.
+graph cannot be faster than this; `pf-slam bench` prints each run's ratio to it. A bag with
+stereo images gets a fourth sink standing in for the texture node: it takes both images raw and
+reports each left image finished at once on pf_slam/texture_progress, which the replay paces the
+images on as in the real run.
 """
 from __future__ import annotations
 
@@ -22,17 +25,24 @@ def _sink_class():
 
     from pf_slam_nodes.nodes.bag_replay import message_class
     from pf_slam_nodes.nodes.common import announce_when_matched
+    from std_msgs.msg import UInt32MultiArray
+
     from pf_slam_nodes.ros import qos, topics
 
     class CountingSink(Node):
         """Subscribes to `subscribe` (topic -> type name) raw and counts; optionally answers
         every scan with a pose."""
 
-        def __init__(self, name: str, subscribe: dict[str, str], echo_pose: bool, context) -> None:
+        def __init__(self, name: str, subscribe: dict[str, str], echo_pose: bool, context,
+                     progress_on: str = "") -> None:
             super().__init__(name, context=context)
             self.counts = {t: 0 for t in subscribe}
             self.pose_raw = serialize_message(PoseStamped())
             needs = []
+            self.progress_on = progress_on
+            if progress_on:  # the texture node's stand-in: every pair finished at once
+                self.pub_progress = self.create_publisher(UInt32MultiArray, topics.TEXTURE_PROGRESS, qos.latched())
+                needs.append((self.pub_progress, 1))
             if echo_pose:
                 self.pub_pose = self.create_publisher(PoseStamped, topics.POSE, qos.pipeline())
                 needs.append((self.pub_pose, 1))
@@ -44,6 +54,8 @@ def _sink_class():
         def _counter(self, topic: str):
             def cb(_raw: bytes) -> None:
                 self.counts[topic] += 1
+                if topic == self.progress_on:
+                    self.pub_progress.publish(UInt32MultiArray(data=[self.counts[topic], 0]))
             return cb
 
         def _scan(self, _raw: bytes) -> None:
@@ -67,6 +79,8 @@ def replay_ceiling(bag: str, executor: str = "events", domain_id: int | None = N
     tp = {t: m for t, (m, _) in info["topics"].items()}
     odom = {t: tp[t] for t in ("/odom", "/encoders", "/fog") if t in tp}
     scan = {"/scan": tp["/scan"]} if "/scan" in tp else {}
+    left, right = "/stereo/left/image_raw", "/stereo/right/image_raw"
+    images = {t: tp[t] for t in (left, right) if t in tp}
     domain_scope = contextlib.ExitStack()
     ctx, _dom = domain_scope.enter_context(ros_context(domain_id))
     nodes = []
@@ -76,8 +90,13 @@ def replay_ceiling(bag: str, executor: str = "events", domain_id: int | None = N
         Sink = _sink_class()
         sinks = [Sink("predictor", {**scan, **odom}, True, ctx), Sink("correlator", scan, False, ctx),
                  Sink("mapper", scan, False, ctx)]
+        extra = []
+        if left in images:
+            sinks.append(Sink("texture", images, False, ctx, progress_on=left))
+            extra = [Parameter("image_topic", value=left),
+                     Parameter("wait_for", value=["predictor", "correlator", "mapper", "texture"])]
         replay = BagReplay(context=ctx, parameter_overrides=[Parameter("bag", value=str(bag)),
-                                                             Parameter("rate", value="max")])
+                                                             Parameter("rate", value="max"), *extra])
         nodes = [*sinks, replay]
         for n in nodes:
             ex.add_node(n)
@@ -102,4 +121,5 @@ def replay_ceiling(bag: str, executor: str = "events", domain_id: int | None = N
     return {"bag": str(bag), "bag_duration_s": round(dur, 3), "wall_time_s": round(wall, 3),
             "real_time_factor": round(dur / wall, 2) if wall > 0 else None,
             "messages": sum(expected.values()), "received_by_predictor_sink": dict(received),
+            "images": sum(expected.get(t, 0) for t in images),
             "executor": executor}

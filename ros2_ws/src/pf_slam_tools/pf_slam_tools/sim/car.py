@@ -64,6 +64,7 @@ import numpy as np
 from pf_slam_nodes.io.mapfile import write_map
 from pf_slam_tools.sim import car_sensors as cs
 from pf_slam_tools.sim.car_params import PARAM_FILES
+from pf_slam_tools.sim.car_variation import CarVariation
 from pf_slam_tools.sim.car_world import (
     CarWorld, Drive, build_world, occupancy_grid, plan_route, shift_world)
 
@@ -137,7 +138,8 @@ def _shift_drive(drive: Drive, shift_xy: np.ndarray) -> Drive:
 
 def simulate_car(out_dir: str | os.PathLike, seed: int = 0, duration_s: float = 300.0,
                  stereo_rate_hz: float = 1.0, encoder_slip: float = 0.003,
-                 lidar_noise: bool = True, overwrite: bool = False) -> CarSimResult:
+                 lidar_noise: bool = True, overwrite: bool = False,
+                 world: int | None = None) -> CarSimResult:
     """Simulate the city drive and write the data set layout (module docstring) to ``out_dir``.
 
     Parameters
@@ -154,6 +156,11 @@ def simulate_car(out_dir: str | os.PathLike, seed: int = 0, duration_s: float = 
         Wheel slip random walk (rad per sqrt(rad) of wheel rotation); 0 = none.
     lidar_noise : bool
         False writes noise-free ranges without dropouts.
+    world : int, optional
+        Draws a :class:`~pf_slam_tools.sim.car_variation.CarVariation` from this seed: another
+        layout (city, campus, parking lots, avenues), speeds, stops, wheel calibration error
+        (+-1 %), slip, lidar noise and dropout, FOG noise (``encoder_slip`` is then the
+        variation's). None: the default world and error levels.
     overwrite : bool
         Allow writing into a directory that already has ``sensor_data/`` (the stereo folders
         are emptied first); else ``FileExistsError``.
@@ -177,8 +184,11 @@ def simulate_car(out_dir: str | os.PathLike, seed: int = 0, duration_s: float = 
 
     (world_rng, drive_rng, enc_rng, fog_rng, lidar_rng, cam_rng,
      clock_rng) = (np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(7))
-    world, layout = build_world(world_rng)
-    drive, start, _ = plan_route(float(duration_s), layout, drive_rng)
+    var = CarVariation() if world is None else CarVariation.draw(world)
+    if world is not None:
+        encoder_slip = var.encoder_slip
+    world, layout = build_world(world_rng, var)
+    drive, start, _ = plan_route(float(duration_s), layout, drive_rng, var)
     world = shift_world(world, -start)
     drive = _shift_drive(drive, -start)
     dur = float(duration_s)
@@ -220,6 +230,9 @@ def simulate_car(out_dir: str | os.PathLike, seed: int = 0, duration_s: float = 
     sign = 1.0 if enc_rng.random() < 0.5 else -1.0
     d_true = (cs.WHEEL_D_LEFT_M * (1.0 + sign * mag[0]),
               cs.WHEEL_D_RIGHT_M * (1.0 - sign * mag[1]))
+    if var.wheel_scale_err is not None:  # the calibration file is itself 1 % off
+        d_true = (cs.WHEEL_D_LEFT_M * (1.0 + var.wheel_scale_err + 0.5 * var.wheel_diff_err),
+                  cs.WHEEL_D_RIGHT_M * (1.0 + var.wheel_scale_err - 0.5 * var.wheel_diff_err))
     offsets = tuple(int(v) for v in enc_rng.integers(0, 1_000_000, 2))
     s_enc = drive.s_at(_rel_s(t_enc))
     th_enc = drive.poses_at(_rel_s(t_enc))[:, 2]
@@ -229,17 +242,19 @@ def simulate_car(out_dir: str | os.PathLike, seed: int = 0, duration_s: float = 
                          zip(t_enc.tolist(), counts[:, 0].tolist(), counts[:, 1].tolist())))
 
     # FOG: increments over [t_{k-1}, t_k] (the first over the millisecond before t_0)
-    bias = float(fog_rng.uniform(1e-7, 6e-7) * (1.0 if fog_rng.random() < 0.5 else -1.0))
+    bias = float(fog_rng.uniform(1e-7, var.fog_bias_max_rad) * (1.0 if fog_rng.random() < 0.5 else -1.0))
     th_fog = drive.poses_at(_rel_s(t_fog))[:, 2]
     th_prev = np.concatenate([drive.poses_at(_rel_s(t_fog[:1]) - 1e-3)[:, 2], th_fog[:-1]])
-    fog = cs.fog_deltas(th_prev, th_fog, bias, FOG_SIGMA_RAD, FOG_RP_SIGMA_RAD, fog_rng)
+    fog = cs.fog_deltas(th_prev, th_fog, bias, var.fog_sigma_rad, FOG_RP_SIGMA_RAD, fog_rng)
     _write_rows(dirs['sensor_data'] / 'fog.csv', t_fog, fog, '%.9e', chunk=20000)
 
     # lidar
     ranges = cs.lidar_ranges(drive.poses_at(_rel_s(t_lid)), world.boxes)
     if lidar_noise:
-        ranges = ranges + cs.LIDAR_SIGMA_M * lidar_rng.normal(size=ranges.shape)
-        ranges[lidar_rng.random(size=ranges.shape) < cs.LIDAR_DROPOUT] = np.inf
+        ranges = ranges + var.lidar_sigma_m * lidar_rng.normal(size=ranges.shape)
+        ranges[lidar_rng.random(size=ranges.shape) < var.lidar_dropout] = np.inf
+        if var.lidar_scan_dropout > 0:  # whole scans without a return
+            ranges[lidar_rng.random(size=len(ranges)) < var.lidar_scan_dropout] = np.inf
     ranges[~(ranges <= cs.LIDAR_MAX_M)] = 0.0
     ranges = np.maximum(ranges, 0.0)
     _write_rows(dirs['sensor_data'] / 'lidar.csv', t_lid, ranges, '%.3f')
@@ -263,9 +278,10 @@ def simulate_car(out_dir: str | os.PathLike, seed: int = 0, duration_s: float = 
         f'wheel_base_m: {cs.WHEEL_BASE_M}\n'
         f'encoder_slip: {float(encoder_slip):g}\n'
         f'fog_yaw_bias_rad_per_sample: {bias:.6e}\n'
-        f'fog_yaw_sigma_rad: {FOG_SIGMA_RAD:g}\n'
-        f'lidar_sigma_m: {cs.LIDAR_SIGMA_M if lidar_noise else 0.0:g}\n'
-        f'path_length_m: {path_len:.3f}\n'
+        f'fog_yaw_sigma_rad: {var.fog_sigma_rad:g}\n'
+        f'lidar_sigma_m: {var.lidar_sigma_m if lidar_noise else 0.0:g}\n'
+        + (f'world: {var.world}\nvariation: "{var.describe()}"\n' if var.world is not None else '')
+        + f'path_length_m: {path_len:.3f}\n'
         f'stop_times_s: [{", ".join(f"{t:.2f}" for t in stops)}]\n'
         f'ground_truth_epoch_ns: {EPOCH_NS}\n', encoding='utf-8')
     return CarSimResult(out_dir=out, seed=int(seed), duration_s=dur, n_encoder=len(t_enc),
@@ -293,6 +309,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                         help='simulated seconds (default: 300)')
     parser.add_argument('--stereo-rate', type=float, default=1.0,
                         help='stereo pairs per second, 0 = none (default: 1)')
+    parser.add_argument('--world', type=int, default=None,
+                        help='draw another world and error levels from this seed: layout (city, campus, '
+                             'parking lots, avenues), speeds, stops, wheel calibration error, slip, lidar '
+                             'noise and dropout (default: the standard world)')
     parser.add_argument('--force', action='store_true',
                         help='write into a directory that already holds a data set')
     return parser
@@ -309,7 +329,8 @@ def run_args(args: argparse.Namespace) -> int:
     """Run the simulator from parsed ``add_arguments`` options; prints a summary."""
     try:
         res = simulate_car(args.out, seed=args.seed, duration_s=args.duration,
-                           stereo_rate_hz=args.stereo_rate, overwrite=args.force)
+                           stereo_rate_hz=args.stereo_rate, overwrite=args.force,
+                           world=args.world)
     except (FileExistsError, ValueError) as exc:
         print(f'simulate: error: {exc}', file=sys.stderr)
         return 2

@@ -23,7 +23,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .car_variation import CarVariation
 from .paths import pose_on_path
+
+_DEFAULT = CarVariation()
 
 __all__ = [
     'CarWorld', 'Drive', 'KIND_BUILDING', 'KIND_CAR', 'KIND_CROWN', 'KIND_POLE', 'KIND_TRUNK',
@@ -112,9 +115,9 @@ def _intervals(lo: float, hi: float, n: int, min_len: float,
     return list(zip(edges[:-1], edges[1:]))
 
 
-def _street_layout(rng: np.random.Generator) -> tuple[np.ndarray, ...]:
-    pitch_x = rng.uniform(55.0, 75.0, N_STREETS - 1)
-    pitch_y = rng.uniform(55.0, 75.0, N_STREETS - 1)
+def _street_layout(rng: np.random.Generator, var: CarVariation = _DEFAULT) -> tuple[np.ndarray, ...]:
+    pitch_x = rng.uniform(*var.pitch_x_m, N_STREETS - 1)
+    pitch_y = rng.uniform(*var.pitch_y_m, N_STREETS - 1)
     sx = np.concatenate([[0.0], np.cumsum(pitch_x)])
     sy = np.concatenate([[0.0], np.cumsum(pitch_y)])
     wx = rng.uniform(9.0, 12.0, N_STREETS)
@@ -130,16 +133,34 @@ def _block_edges(s: np.ndarray, w: np.ndarray) -> list[tuple[float, float]]:
     return list(zip(lo, hi))
 
 
+def _parking_lot(x0: float, y0: float, x1: float, y1: float, rng: np.random.Generator) -> list[tuple]:
+    """Rows of parked cars (east-west rows 6 m apart, 2.6 m stalls, 70 % taken) in a lot."""
+    out = []
+    y = y0 + 2.0
+    while y + 2.0 < y1 - 2.0:
+        x = x0 + 2.0
+        while x + 1.9 < x1 - 2.0:
+            if rng.random() < 0.7:
+                length, width = rng.uniform(4.2, 4.9), rng.uniform(1.7, 1.9)
+                rgb = _CAR_RGB[rng.integers(len(_CAR_RGB))] + rng.uniform(-8, 8, 3)
+                out.append(((x, y, 0.0, x + width, y + length, rng.uniform(1.4, 1.6)), KIND_CAR, rgb))
+            x += 2.6
+        y += 6.0
+    return out
+
+
 def _buildings(sx: np.ndarray, sy: np.ndarray, wx: np.ndarray, wy: np.ndarray,
-               rng: np.random.Generator) -> list[tuple]:
+               rng: np.random.Generator, var: CarVariation = _DEFAULT) -> list[tuple]:
     out = []
     for bx0, bx1 in _block_edges(sx, wx):
         for by0, by1 in _block_edges(sy, wy):
             for lx0, lx1 in _intervals(bx0, bx1, int(rng.integers(1, 4)), 14.0, rng):
                 for ly0, ly1 in _intervals(by0, by1, int(rng.integers(1, 4)), 14.0, rng):
-                    if rng.random() < 0.08:
-                        continue  # a plaza / parking lot
-                    inset = rng.uniform(0.0, 2.5, 4)
+                    if rng.random() < var.open_lot_p:  # a plaza / parking lot
+                        if var.parking_lot_p > 0 and rng.random() < var.parking_lot_p:
+                            out += _parking_lot(lx0, ly0, lx1, ly1, rng)
+                        continue
+                    inset = rng.uniform(0.0, var.inset_max_m, 4)
                     h = 6.0 + 34.0 * rng.random() ** 1.6
                     rgb = _BUILDING_RGB[rng.integers(len(_BUILDING_RGB))] + rng.uniform(-12, 12, 3)
                     out.append(((lx0 + inset[0], ly0 + inset[1], 0.0, lx1 - inset[2],
@@ -148,7 +169,7 @@ def _buildings(sx: np.ndarray, sy: np.ndarray, wx: np.ndarray, wy: np.ndarray,
 
 
 def _street_furniture(sx: np.ndarray, sy: np.ndarray, wx: np.ndarray, wy: np.ndarray,
-                      rng: np.random.Generator) -> list[tuple]:
+                      rng: np.random.Generator, var: CarVariation = _DEFAULT) -> list[tuple]:
     """Parked cars along both kerbs and poles / trees on both sidewalks of every segment."""
     out = []
     for axis, (s_along, w_along, s_line, w_line) in enumerate(((sx, wx, sy, wy),
@@ -161,7 +182,7 @@ def _street_furniture(sx: np.ndarray, sy: np.ndarray, wx: np.ndarray, wy: np.nda
                 for side in (-1.0, 1.0):
                     p = a0 + rng.uniform(0.0, 6.0)
                     while True:
-                        if rng.random() < 0.45:
+                        if rng.random() < var.parked_car_p:
                             van = rng.random() < 0.12
                             length = rng.uniform(5.0, 6.5) if van else rng.uniform(4.2, 4.9)
                             width = rng.uniform(1.9, 2.1) if van else rng.uniform(1.7, 1.9)
@@ -181,7 +202,7 @@ def _street_furniture(sx: np.ndarray, sy: np.ndarray, wx: np.ndarray, wy: np.nda
                     q = s_along[i] + w_along[i] / 2 + rng.uniform(4.0, 15.0)
                     e = c + side * (w / 2 + 0.6)
                     while q < s_along[i + 1] - w_along[i + 1] / 2 - 4.0:
-                        if rng.random() < 0.5:
+                        if rng.random() < 1.0 - var.tree_p:
                             hgt = rng.uniform(7.0, 9.0)
                             out.append((_axis_box([q - 0.125, e - 0.125, 0.0, q + 0.125,
                                                    e + 0.125, hgt], axis), KIND_POLE,
@@ -196,7 +217,7 @@ def _street_furniture(sx: np.ndarray, sy: np.ndarray, wx: np.ndarray, wy: np.nda
                                                    top + rng.uniform(2.2, 3.5)], axis),
                                         KIND_CROWN, np.array([60.0, 110.0, 45.0])
                                         + rng.uniform(-15, 15, 3)))
-                        q += rng.uniform(18.0, 35.0)
+                        q += rng.uniform(*var.furniture_gap_m)
     return out
 
 
@@ -295,13 +316,13 @@ def _floor_texture(sx: np.ndarray, sy: np.ndarray, wx: np.ndarray, wy: np.ndarra
     return np.clip(np.rint(tex), 0, 255).astype(np.uint8), origin
 
 
-def build_world(rng: np.random.Generator) -> tuple[CarWorld, dict]:
+def build_world(rng: np.random.Generator, var: CarVariation = _DEFAULT) -> tuple[CarWorld, dict]:
     """Seeded city world in the GRID frame (``shift_world`` moves it to the start frame).
 
     Returns the world and a dict of the street layout (``sx, sy, wx, wy``) for ``plan_route``.
     """
-    sx, sy, wx, wy = _street_layout(rng)
-    objs = _buildings(sx, sy, wx, wy, rng) + _street_furniture(sx, sy, wx, wy, rng)
+    sx, sy, wx, wy = _street_layout(rng, var)
+    objs = _buildings(sx, sy, wx, wy, rng, var) + _street_furniture(sx, sy, wx, wy, rng, var)
     boxes = np.array([o[0] for o in objs], dtype=np.float64)
     kinds = np.array([o[1] for o in objs], dtype=np.int8)
     colours = np.clip(np.array([o[2] for o in objs]), 0, 255).astype(np.float32)
@@ -393,7 +414,7 @@ def _route_nodes(n_min_m: float, layout: dict, rng: np.random.Generator,
     return nodes
 
 
-def plan_route(duration_s: float, layout: dict, rng: np.random.Generator,
+def plan_route(duration_s: float, layout: dict, rng: np.random.Generator, var: CarVariation = _DEFAULT,
                ) -> tuple[Drive, np.ndarray, np.ndarray]:
     """The seeded drive, in the GRID frame.
 
@@ -401,7 +422,7 @@ def plan_route(duration_s: float, layout: dict, rng: np.random.Generator,
     arc lengths of the stop points.
     """
     sx, sy, wx, wy = layout['sx'], layout['sy'], layout['wx'], layout['wy']
-    nodes = _route_nodes(12.0 * duration_s + 300.0, layout, rng)
+    nodes = _route_nodes(max(12.0, var.speed_mps[1]) * duration_s + 300.0, layout, rng)
 
     def node_xy(nd: tuple[int, int]) -> np.ndarray:
         return np.array([sx[nd[0]], sy[nd[1]]])
@@ -457,14 +478,14 @@ def plan_route(duration_s: float, layout: dict, rng: np.random.Generator,
     s0 = np.concatenate([[0.0], np.cumsum(pieces_a[:, 4])[:-1]])
     idx = np.clip(np.searchsorted(s0, s, side='right') - 1, 0, len(pieces_a) - 1)
     kappa = np.abs(pieces_a[idx, 3])
-    leg_v = rng.uniform(8.0, 12.0, len(pieces_a))
+    leg_v = rng.uniform(*var.speed_mps, len(pieces_a))
     vlim = np.minimum(leg_v[idx], np.sqrt(2.5 / np.maximum(kappa, 1e-9)))
     # stops: before the intersection nearest to each target distance
-    n_stops = max(1, int(round(duration_s / 150.0)))
+    n_stops = max(1, int(round(duration_s / var.stop_every_s)))
     node_s_a = np.array(node_s)
     stops = []
     for k in range(n_stops):
-        target = (k + 0.4) / n_stops * duration_s * 9.0
+        target = (k + 0.4) / n_stops * duration_s * (0.9 * float(np.mean(var.speed_mps)))
         cand = node_s_a[node_s_a > 40.0]
         ns = cand[np.argmin(np.abs(cand - target))]
         stops.append(ns - 14.0)
@@ -483,7 +504,7 @@ def plan_route(duration_s: float, layout: dict, rng: np.random.Generator,
     # holds: 1 s at the start, 3-8 s at each stop
     holds = {0: 1.0}
     for i in stop_idx:
-        holds[int(i)] = float(rng.uniform(3.0, 8.0))
+        holds[int(i)] = float(rng.uniform(*var.stop_hold_s))
     t_k, s_k, shift = [], [], 0.0
     for i in range(len(s)):
         t_k.append(t[i] + shift)

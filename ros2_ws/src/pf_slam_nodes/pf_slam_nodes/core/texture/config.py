@@ -116,6 +116,11 @@ class TextureConfig(_ConfigBase):
         Near rows, where a cell holds many pixels, only every ``s``-th row / column
         (``s <= pixel_stride_max``) is splatted (see ``StereoTexturer._stride_mask``); 1 =
         every pixel.
+    cell_samples : int
+        Pixels splatted per cell along each image axis where the image has more: a row keeps
+        every ``floor(cell_m / (cell_samples * footprint))``-th row and column (clipped to
+        ``1 .. pixel_stride_max``), rows by their along-track footprint, columns by their
+        across-track one (``StereoTexturer._stride_mask``).
     fill_gaps : bool
         Cells in view that no ground pixel fell in (far away, where image rows are sparser
         than cells) get the colour at their centre's projection (one sample).
@@ -162,6 +167,7 @@ class TextureConfig(_ConfigBase):
     plane_max_offset_m: float = 0.3
     snap_to_plane: bool = True
     pixel_stride_max: int = 3
+    cell_samples: int = 4
     fill_gaps: bool = True
     cell_m: float = 0.1
     tile_cells: int = 128
@@ -222,6 +228,7 @@ class TextureConfig(_ConfigBase):
         _check_pos('plane_max_tilt_deg', self.plane_max_tilt_deg)
         _check_pos('plane_max_offset_m', self.plane_max_offset_m)
         _check_int('pixel_stride_max', self.pixel_stride_max, 1)
+        _check_int('cell_samples', self.cell_samples, 1)
         _check_pos('cell_m', self.cell_m)
         _check_int('tile_cells', self.tile_cells, 8)
         _check_int('max_tiles', self.max_tiles, 1)

@@ -100,6 +100,9 @@ class FrameResult:
     n_fill: int = 0
 
 
+_DEMOSAIC_MARGIN = 8  # rows above the first processed one demosaiced with it (even: Bayer phase)
+
+
 class StereoTexturer:
     """Turns stereo pairs into coloured ground samples (see the module docstring).
 
@@ -156,12 +159,15 @@ class StereoTexturer:
         (None when not rectified here), and ``timings`` (ms, plus ``'rectified_here'``).
         """
         t0 = time.perf_counter()
-        lrgb = debayer(left, encoding, self.cfg.demosaic)
-        lg, rg = grey(left, encoding), grey(right, encoding)
-        for img in (lrgb, rg):
+        for img in (left, right):
             if img.shape[:2] != (self.rig.height, self.rig.width):
                 raise ValueError(f'image is {img.shape[1]} x {img.shape[0]}, the calibration '
                                  f'{self.rig.width} x {self.rig.height}')
+        # images that need no rectification: only the processed rows (and a margin for the
+        # demosaicing neighbourhood, even to keep the Bayer phase) are demosaiced
+        crop = max(self.first_row - _DEMOSAIC_MARGIN, 0) if self._rectify is False else 0
+        lrgb = debayer(left[crop:], encoding, self.cfg.demosaic)
+        lg, rg = grey(left[crop:], encoding), grey(right[crop:], encoding)
         t1 = time.perf_counter()
         if self._rectify is None:
             already = detect_rectified(lg, rg, self.rig)
@@ -178,7 +184,7 @@ class StereoTexturer:
             lrgb, lg, rg = outs
             valid = self.rig.rectified_valid('left')[v0:]
         else:
-            lrgb, lg, rg = lrgb[v0:], lg[v0:], rg[v0:]
+            lrgb, lg, rg = lrgb[v0 - crop:], lg[v0 - crop:], rg[v0 - crop:]
         t2 = time.perf_counter()
         return lrgb, lg, rg, valid, {'debayer': 1e3 * (t1 - t0), 'rectify': 1e3 * (t2 - t1),
                                      'rectified_here': rect}
@@ -277,9 +283,11 @@ class StereoTexturer:
         """Bool ``(h, w)`` (rows from ``first_row``): the pixels sampled for splatting.
 
         Near the car a cell holds hundreds of pixels (5 m ahead: 2 cm along x 6 mm across at
-        the KAIST rig); a row whose ground footprint (nominal plane) is below ``cell_m / 4``
-        keeps every ``s``-th row and column, ``s = floor(cell_m / (4 footprint))`` clipped to
-        ``pixel_stride_max``: each cell still gets >= ~16 samples, for a quarter of the work.
+        the KAIST rig). Rows are kept every ``floor(cell_m / (n fp_row))``-th row and columns
+        every ``floor(cell_m / (n fp_col))``-th column (``n = cell_samples``; ``fp_row`` the
+        along-track ground footprint of a pixel in that row on the nominal plane, ``fp_col`` the
+        across-track one), both clipped to ``1 .. pixel_stride_max``: each cell still gets about
+        ``n x n`` samples where the image has more.
         """
         key = (h, w)
         m = self._stride_cache.get(key)
@@ -287,14 +295,18 @@ class StereoTexturer:
             rig, cfg = self.rig, self.cfg
             v = self.first_row + np.arange(h, dtype=np.float64)
             cam_h = max(float(rig.t_vehicle_cam[2]), 1e-3)
+            n = float(cfg.cell_samples)
+
+            def stride_of(fp: np.ndarray) -> np.ndarray:
+                with np.errstate(divide='ignore', invalid='ignore'):
+                    st = np.where(np.isfinite(fp), np.floor(cfg.cell_m / (n * fp)), 1.0)
+                return np.clip(np.nan_to_num(st, nan=1.0), 1, cfg.pixel_stride_max).astype(np.int64)
+
             with np.errstate(divide='ignore', invalid='ignore'):
                 z = np.where(v > rig.cy + 1.0, rig.fy * cam_h / (v - rig.cy), np.inf)
-                fp = np.maximum(z * z / (rig.fy * cam_h), z / rig.f)
-                stride = np.where(np.isfinite(fp), np.floor(cfg.cell_m / (4.0 * fp)), 1.0)
-            stride = np.clip(np.nan_to_num(stride, nan=1.0), 1, cfg.pixel_stride_max)
-            stride = stride.astype(np.int64)
-            rows = (np.arange(h) % stride) == 0
-            cols = (np.arange(w)[None, :] % stride[:, None]) == 0
+            s_row, s_col = stride_of(z * z / (rig.fy * cam_h)), stride_of(z / rig.f)
+            rows = (np.arange(h) % s_row) == 0
+            cols = (np.arange(w)[None, :] % s_col[:, None]) == 0
             m = rows[:, None] & cols
             self._stride_cache[key] = m
         return m
@@ -349,19 +361,21 @@ class StereoTexturer:
             full &= valid
         ground_full = full.copy()  # for gap filling
         full &= self._stride_mask(hf, wf)
-        if cfg.snap_to_plane:  # ray-plane intersection, separable in rows and columns
+        if cfg.snap_to_plane:  # ray-plane intersection of the sampled pixels only
             r_vc, _ = rig.rect_to_vehicle(rect)
             r = r_vc.astype(np.float32)
-            ry, rx = self._grid_rays(self.first_row + np.arange(hf), np.arange(wf))
+            ri, ci = np.nonzero(full)
+            ry, rx = self._grid_rays(self.first_row + ri, ci)
+            ry, rx = ry[:, 0], rx[0]
             q = [r[i, 0] * rx + r[i, 1] * ry + r[i, 2] for i in range(3)]  # vehicle rays
             nq = n32[0] * q[0] + n32[1] * q[1] + n32[2] * q[2]
             with np.errstate(divide='ignore', invalid='ignore'):
                 sc = -np.float32(float(plane.normal @ rig.t_vehicle_cam) + plane.c) / nq
-                full &= sc > 0
                 px = t[0] + sc * q[0]
                 py = t[1] + sc * q[1]
-                full &= self._in_box_xy(px, py)
-            xy_v = np.stack([px[full], py[full]], axis=-1).astype(np.float64)
+                keep = (sc > 0) & self._in_box_xy(px, py)
+            full[ri[~keep], ci[~keep]] = False  # row-major order, as full[full] below
+            xy_v = np.stack([px[keep], py[keep]], axis=-1).astype(np.float64)
         else:  # each full-resolution pixel takes the stereo point of its disparity pixel
             gu = np.repeat(np.repeat(grid[..., :2], k, axis=0), k, axis=1)
             g2 = np.zeros((hf, wf, 2), np.float32)
