@@ -65,6 +65,7 @@ def test_launch_plan_live_and_bag():
     assert "mount_from_tf" not in bag["mapper"]  # pf-slam run's way: the bag's /tf_static, read before
     assert graph_nodes(use_sim_time="false")["mapper"]["use_sim_time"] is False
     assert graph_nodes(publish_sensor_tf="true")["mapper"]["publish_sensor_tf"] is True
+    assert graph_nodes(sensor_qos="best_effort")["predictor"]["sensor_qos"] == "best_effort"
     loc = graph_nodes(map="maps/office.yaml")  # localization only, on live topics
     assert loc["correlator"]["mode"] == "localization" and loc["mapper"]["mode"] == "localization"
     assert loc["mapper"]["map_file"] == os.path.abspath("maps/office.yaml")

@@ -68,7 +68,7 @@ def _nodes(context):
               ("fog", arg("fog_topic")), ("imu", arg("imu_topic"))]
     plan = graph_nodes(**{k: arg(k).perform(context) for k in
                           ("bag", "use_sim_time", "texture", "odometry_source", "publish_sensor_tf", "scan_topic",
-                           "map")})
+                           "map", "sensor_qos")})
     return [LogInfo(msg=line)] + [
         Node(package="pf_slam_nodes", executable=name, name=name, output="screen",
              parameters=files + [extra], remappings=remaps)
@@ -92,6 +92,9 @@ def generate_launch_description():
                               description="mapper: base_link -> lidar on /tf_static from the parameters; auto: "
                                           "only with a bag (a robot's TF tree has it)"),
         DeclareLaunchArgument("texture", default_value="false", description="run the stereo texture node"),
+        DeclareLaunchArgument("sensor_qos", default_value="",
+                              description="reliable or best_effort (drivers publishing with the sensor-data QoS); "
+                                          "empty: the parameters'"),
         DeclareLaunchArgument("map", default_value="",
                               description="localization only: track the pose on this saved map (map_server .yaml)"),
         DeclareLaunchArgument("scan_topic", default_value="/scan", description="sensor_msgs/LaserScan"),

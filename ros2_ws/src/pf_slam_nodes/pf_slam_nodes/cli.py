@@ -174,6 +174,9 @@ def _add_live_parsers(sub) -> None:
                          "/tf (default: the parameters', else odom)")
     lv.add_argument("--sim-time", choices=["auto", "true", "false"], default="auto",
                     help="use_sim_time: auto follows /clock once one is published (default)")
+    lv.add_argument("--sensor-qos", choices=["reliable", "best_effort"], default=None,
+                    help="QoS reliability of the sensor subscriptions (default reliable; best_effort for drivers "
+                         "that publish with the sensor-data QoS)")
     lv.add_argument("--mount-wait", type=float, default=5.0, metavar="S",
                     help="after the first scan, wait up to S s for its frame on /tf_static or /tf (the lidar mount)")
     lv.add_argument("--texture", action="store_true", help="also run the stereo texture node")

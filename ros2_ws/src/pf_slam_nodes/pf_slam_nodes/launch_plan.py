@@ -21,13 +21,15 @@ def _bool_arg(name: str, value: str, allowed=("auto", "true", "false")) -> str:
 
 
 def graph_nodes(bag: str = "", use_sim_time: str = "auto", texture: str = "false", odometry_source: str = "",
-                publish_sensor_tf: str = "auto", scan_topic: str = "/scan", map: str = "") -> dict[str, dict[str, Any]]:
+                publish_sensor_tf: str = "auto", scan_topic: str = "/scan", map: str = "",
+                sensor_qos: str = "") -> dict[str, dict[str, Any]]:
     """Node name -> the parameters the launch file adds for it (on top of the parameter files), in
     start order. use_sim_time auto: not set, so each node switches to /clock at its first message
     (nodes.common.follow_clock); bag_replay, the clock's source, never gets it.
     publish_sensor_tf auto: only with a bag (a robot's TF tree has its lidar's mount already).
     Without a bag the nodes take the lidar mount from /tf_static + /tf (mount_from_tf).
-    map: localization only on that saved map (map_server .yaml), as `pf-slam run --localize`."""
+    map: localization only on that saved map (map_server .yaml), as `pf-slam run --localize`.
+    sensor_qos: the predictor's sensor subscriptions (reliable | best_effort; empty: the parameters')."""
     sim = _bool_arg("use_sim_time", use_sim_time)
     sensor_tf = _bool_arg("publish_sensor_tf", publish_sensor_tf)
     if odometry_source not in ODOMETRY_SOURCES:
@@ -47,6 +49,8 @@ def graph_nodes(bag: str = "", use_sim_time: str = "auto", texture: str = "false
     if not bag:  # live: the lidar mount from the robot's /tf_static + /tf (nodes/mount_tf.py)
         for n in SLAM_NODES:
             out[n]["mount_from_tf"] = True
+    if sensor_qos:
+        out["predictor"]["sensor_qos"] = _bool_arg("sensor_qos", sensor_qos, ("reliable", "best_effort"))
     if map:
         out["correlator"]["mode"] = "localization"
         out["mapper"].update(mode="localization", map_file=os.path.abspath(map))

@@ -51,6 +51,8 @@ PARAM_DOCS: dict[str, str] = {
     "scan_topic": "the bag's LaserScan topic (pacing, end-of-bag counts)",
     "scan_subscribers": "subscriptions the scan topic must have matched before the replay starts",
     "clock_period_s": "/clock goes out at least this often in bag time, and with every scan (s)",
+    "sensor_qos": "QoS reliability of the sensor subscriptions (scan, odometry, encoders, gyro): 'reliable' "
+                  "(lossless replay) or 'best_effort' (drivers that publish with the sensor-data QoS)",
     "start_delay_s": "wait this long after the graph is ready before the first message (s; like ros2 bag "
                      "play --delay: time for a viewer on an open --domain to discover the run)",
     "wait_for": "nodes whose pf_slam/ready announcement the replay waits for before it starts",

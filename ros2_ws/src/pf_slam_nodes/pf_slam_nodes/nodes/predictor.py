@@ -48,6 +48,7 @@ import numpy as np
 from geometry_msgs.msg import PoseStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
 from pf_slam_interfaces.msg import FogBatch, ParticleArray, ReplayStatus
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from sensor_msgs.msg import Imu, JointState, LaserScan
 from tf2_msgs.msg import TFMessage
@@ -82,7 +83,19 @@ class Predictor(Node):
         self.pub_scan = self.create_publisher(LaserScan, topics.SCAN_CORRECTED, qos.pipeline())
         self.pose_cdr = cdr.PoseStampedWriter(self.map_frame)  # one pose per scan: published as bytes
         self._init_odom_tf()
-        sub_scan = self.create_subscription(LaserScan, topics.SCAN, self._on_scan, qos.pipeline(), raw=True)
+        sensor_qos = str(param(self, "sensor_qos", "reliable"))
+
+        def sensor_sub(msg_type, topic, callback, depth, raw=False):
+            """A sensor input with sensor_qos; a publisher whose QoS cannot match is named once."""
+            profile = qos.sensor(depth, sensor_qos)
+            events = SubscriptionEventCallbacks(incompatible_qos=lambda _e: self.get_logger().error(
+                f"{self.resolve_topic_name(topic)}: a publisher's QoS is incompatible with this "
+                f"subscription ({sensor_qos}); nothing arrives from it. A driver that publishes with the "
+                "sensor-data QoS needs sensor_qos: best_effort (pf-slam live --sensor-qos best_effort, "
+                "launch sensor_qos:=best_effort)", once=True))
+            return self.create_subscription(msg_type, topic, callback, profile, raw=raw, event_callbacks=events)
+
+        sub_scan = sensor_sub(LaserScan, topics.SCAN, self._on_scan, 1000, raw=True)
         # the correlator (+ the mapper for the scans); bag_replay (paces on pose), the mapper (the
         # trajectory save_map writes) + observers
         # that must see every pose; the scans' source (the replay starts once this is matched)
@@ -93,13 +106,12 @@ class Predictor(Node):
         self.create_subscription(ReplayStatus, topics.REPLAY_STALL, self._on_stall, qos.pipeline())
         wheels_cfg = None
         if source == "odom":
-            self.create_subscription(Odometry, topics.ODOM, self._on_odom, qos.pipeline(10000))
+            sensor_sub(Odometry, topics.ODOM, self._on_odom, 10000)
         elif source == "tf":
-            self.create_subscription(TFMessage, topics.TF, self._on_tf, qos.pipeline(10000))
+            self.create_subscription(TFMessage, topics.TF, self._on_tf_odometry, qos.pipeline(10000))
         elif source == "encoders":
             wheels_cfg = declare_config(self, "wheels")
-            self.create_subscription(JointState, topics.ENCODERS, self._on_encoders, qos.pipeline(10000),
-                                     raw=True)
+            sensor_sub(JointState, topics.ENCODERS, self._on_encoders, 10000, raw=True)
         # yaw from a gyro instead of the wheels: "none" | "batch" (FogBatch) | "vector3" | "imu" (Imu on imu)
         fog = param(self, "fog_format", "none")
         if fog not in ("none", "batch", "vector3", "imu"):
@@ -108,11 +120,11 @@ class Predictor(Node):
             raise ValueError("parameter 'fog_format' needs odometry_source 'encoders'")
         self.fog_topic = self.resolve_topic_name(topics.IMU if fog == "imu" else topics.FOG)
         if fog == "batch":
-            self.create_subscription(FogBatch, topics.FOG, self._on_fog_batch, qos.pipeline(10000), raw=True)
+            sensor_sub(FogBatch, topics.FOG, self._on_fog_batch, 10000, raw=True)
         elif fog == "vector3":
-            self.create_subscription(Vector3Stamped, topics.FOG, self._on_fog_vector, qos.pipeline(100000))
+            sensor_sub(Vector3Stamped, topics.FOG, self._on_fog_vector, 100000)
         elif fog == "imu":
-            self.create_subscription(Imu, topics.IMU, self._on_imu, qos.pipeline(100000))
+            sensor_sub(Imu, topics.IMU, self._on_imu, 100000)
         # a lidar on a moving mount: base_frame -> laser.dynamic_frame from /tf
         laser_cfg = declare_config(self, "laser")
         self.mount_frames = None
@@ -123,7 +135,7 @@ class Predictor(Node):
             # it) is not the bag's: not counted against the replay's /tf count
             self._own_tf = {(frame("map_frame"), frame("odom_frame"))} | (
                 {(frame("odom_frame"), frame("base_frame"))} if self.pub_tf is not None else set())
-            self.create_subscription(TFMessage, topics.TF, self._on_tf, qos.pipeline(10000), raw=True)
+            self.create_subscription(TFMessage, topics.TF, self._on_tf_mount, qos.pipeline(10000), raw=True)
         # every decision is the scheduler's; its actions are published as they are decided
         self.sched = sch.PredictorScheduler(filter_cfg, motion_cfg, "odom" if source == "tf" else source, odom_sync, wheels_cfg,
                                             gyro=fog != "none", odom_wait_scans=odom_wait_scans,
@@ -206,7 +218,7 @@ class Predictor(Node):
         pose = np.array([msg.pose.pose.position.x, msg.pose.pose.position.y, float(quat_to_yaw(o.x, o.y, o.z, o.w))])
         self.sched.add_odometry(convert.stamp_to_ns(msg.header.stamp), pose)
 
-    def _on_tf(self, msg: TFMessage) -> None:
+    def _on_tf_odometry(self, msg: TFMessage) -> None:
         """Odometry from the robot's TF tree: each odom_frame -> base_frame transform."""
         for t in msg.transforms:
             if (t.header.frame_id.lstrip("/"), t.child_frame_id.lstrip("/")) == (self.odom_frame, self.base_frame):
@@ -239,7 +251,7 @@ class Predictor(Node):
             self.get_logger().error(f"{topic}: message dropped: {exc}", throttle_duration_sec=5.0)
             return None, None
 
-    def _on_tf(self, raw: bytes) -> None:
+    def _on_tf_mount(self, raw: bytes) -> None:
         """/tf: the moving mount's samples. Messages of the graph itself (odom -> base, map ->
         odom) are not counted; every other one is (the replay's count of the bag's /tf)."""
         sample, own = None, True

@@ -223,6 +223,9 @@ def live_cli(args) -> int:
         o["filter.num_particles"] = args.particles
     if getattr(args, "seed", None) is not None:
         o["filter.seed"] = args.seed
+    overrides: dict[str, dict[str, Any]] = {"/**": o} if o else {}
+    if getattr(args, "sensor_qos", None):
+        overrides["predictor"] = {"sensor_qos": args.sensor_qos}
     return live(args.params, args.profile, args.out, args.processes, args.texture, args.domain,
                 {role: getattr(args, f"{role}_topic", None) for role in DEFAULT_INPUTS},
-                args.odometry, args.sim_time, args.mount_wait, {"/**": o} if o else None)
+                args.odometry, args.sim_time, args.mount_wait, overrides or None)
