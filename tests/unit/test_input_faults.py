@@ -337,7 +337,7 @@ def test_cli_run_node_refusing_a_parameter_leaves_no_out(tmp_path, processes, ro
     assert 'Traceback' not in res.stderr
     last = res.stderr.strip().splitlines()[-1]
     assert last.startswith('pf-slam run: error: node predictor'), last
-    assert "parameter 'odometry_source' must be 'odom' or 'encoders', got 'gps'" in last
+    assert "parameter 'odometry_source' must be 'odom', 'encoders' or 'tf', got 'gps'" in last
     assert not out.exists()
 
 
