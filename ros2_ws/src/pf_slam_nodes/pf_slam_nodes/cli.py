@@ -108,13 +108,14 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks: ParticleArray layout; the graph on the CARMEN logs "
                        "and on simulated car drives; the replay-only ceiling of a bag; scaling with "
                        "particles and grid size")
-    b.add_argument("what", choices=["messages", "carmen", "car", "ceiling", "scaling"])
+    b.add_argument("what", choices=["messages", "carmen", "car", "ceiling", "scaling", "worlds"])
     b.add_argument("--bag", help="ceiling: the bag to replay")
     b.add_argument("--duration", type=float, default=300.0, help="car: simulated drive length (s)")
     b.add_argument("--particles", type=int, help="car: filter.num_particles (default: kaist.yaml)")
-    b.add_argument("--data", help="carmen, scaling: the datasets folder (carmen/ inside); required for them")
+    b.add_argument("--data", help="carmen, scaling, worlds: the datasets folder (carmen/, carmen_corrected/ inside); required for them")
     b.add_argument("--out", default="runs/bench", help="where bags, runs and tables go")
-    b.add_argument("--datasets", nargs="*", help="subset of intel_910 intel_2726 mit-csail")
+    b.add_argument("--datasets", nargs="*", help="subset of intel_910 intel_2726 mit-csail (carmen), or of the "
+                   "corrected-pose buildings and simulated worlds (worlds)")
     b.add_argument("--seeds", type=int, nargs="*", default=[0])
     b.add_argument("--filter-seeds", type=int, nargs="*", default=[0],
                    help="car: the filter's random streams (filter.seed) to run on each drive")
@@ -222,7 +223,7 @@ def _bench(args) -> tuple[str | None, str, str]:
         if not args.bag:
             raise ValueError("bench ceiling needs --bag BAG")
         return None, "", json.dumps(replay_ceiling(args.bag), indent=2)
-    if args.what in ("carmen", "scaling") and not args.data:
+    if args.what in ("carmen", "scaling", "worlds") and not args.data:
         raise ValueError(f"bench {args.what} needs --data DIR (the datasets folder, with carmen/ inside)")
     if args.what == "scaling":
         from pf_slam_tools.bench import scaling
@@ -230,6 +231,10 @@ def _bench(args) -> tuple[str | None, str, str]:
         table = scaling.main(args.data, args.out, args.sweep_particles, args.sweep_grid, args.plot_dir,
                              args.seeds[0] if args.seeds else 0)
         return "scaling", "Scaling with particles and grid size", table
+    if args.what == "worlds":
+        from pf_slam_tools.bench import worlds
+        table = worlds.main(args.data, args.out, args.datasets, tuple(args.seeds))
+        return "worlds", "Seeds and worlds: corrected-pose buildings, simulated buildings (indoor profile)", table
     from pf_slam_tools.bench import carmen
     table = carmen.main(args.data, args.out, args.datasets, tuple(args.seeds), args.processes)
     return (f"carmen_{args.processes}", f"CARMEN logs, no parameter file (the indoor profile), "
