@@ -234,7 +234,8 @@ def _bench(args) -> tuple[str | None, str, str]:
     if args.what == "worlds":
         from pf_slam_tools.bench import worlds
         table = worlds.main(args.data, args.out, args.datasets, tuple(args.seeds))
-        return "worlds", "Seeds and worlds: corrected-pose buildings, simulated buildings (indoor profile)", table
+        part, title = worlds.section(args.datasets)
+        return part, f"Seeds and worlds: {title} (the indoor profile, ROS-free loop)", table
     from pf_slam_tools.bench import carmen
     table = carmen.main(args.data, args.out, args.datasets, tuple(args.seeds), args.processes)
     return (f"carmen_{args.processes}", f"CARMEN logs, no parameter file (the indoor profile), "

@@ -230,8 +230,6 @@ class GridConfig(_ConfigBase):
     clip_max: float = 5.0
     range_max_usable_m: float = 20.0
     max_cells: int = 100_000_000
-    graze_margin_m: float = 0.0
-    free_margin_frac: float = 0.0
 
     def __post_init__(self) -> None:
         _check_pos("resolution_m", self.resolution_m)
@@ -259,7 +257,6 @@ class GridConfig(_ConfigBase):
         if self.clip_max <= 0:
             raise ValueError(f"clip_max must be > 0, got {self.clip_max!r}")
         _check_pos("range_max_usable_m", self.range_max_usable_m)
-        _check_nonneg("graze_margin_m", self.graze_margin_m)
         if self.size_x_m / self.resolution_m > 50000 or self.size_y_m / self.resolution_m > 50000:
             raise ValueError(
                 f"size_x_m/size_y_m too large for resolution_m={self.resolution_m!r}: "

@@ -327,10 +327,6 @@ class LogOddsGrid:
         # DDA: one sample per cell along the major axis; endpoint included only for no-hit beams
         n = np.maximum(np.ceil(np.maximum(np.abs(ex - sx), np.abs(ey - sy))).astype(np.int64), 1)
         counts = n + (~is_hit).astype(np.int64)
-        if self.cfg.graze_margin_m > 0 and is_hit.sum() >= 3:
-            counts = np.where(is_hit, np.maximum(n - self._graze_cells(ex, ey, sx, sy, is_hit), 0), counts)
-        if self.cfg.free_margin_frac > 0:
-            counts = np.where(is_hit, n - np.floor(self.cfg.free_margin_frac * n).astype(np.int64), counts)
         total = int(counts.sum())
         beam = np.repeat(np.arange(r.size), counts)
         start = np.cumsum(counts) - counts
@@ -341,31 +337,6 @@ class LogOddsGrid:
         hx = np.floor(ex[is_hit]).astype(np.int64)
         hy = np.floor(ey[is_hit]).astype(np.int64)
         return fx, fy, hx, hy
-
-    def _graze_cells(self, ex: np.ndarray, ey: np.ndarray, sx: float, sy: float, is_hit: np.ndarray) -> np.ndarray:
-        """Per beam, the cells before its end that its free trace leaves alone: a beam that meets a
-        surface at incidence ``a`` (the surface through its neighbours' ends) runs within one cell of
-        that surface for its last ``1 / sin(a)`` cells, and would clear the surface's own cells there
-        (a wall or a pillar grazed by later rays); ``floor(1 / sin(a)) - 1`` cells are skipped, at
-        most ``graze_margin_m``. 0 for a beam whose neighbours did not hit near its end."""
-        h = np.flatnonzero(is_hit)
-        px, py = ex[h], ey[h]
-        tx = np.zeros(h.size)
-        ty = np.zeros(h.size)
-        near = 0.5 / self.resolution   # neighbours' ends closer than 0.5 m: the same surface
-        dx, dy = px[2:] - px[:-2], py[2:] - py[:-2]
-        ok = np.hypot(dx, dy) < 2 * near
-        tx[1:-1] = np.where(ok, dx, 0.0)
-        ty[1:-1] = np.where(ok, dy, 0.0)
-        ux, uy = px - sx, py - sy
-        cross = np.abs(ux * ty - uy * tx)
-        norm = np.hypot(ux, uy) * np.hypot(tx, ty)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            inv_sin = np.where(norm > 0, norm / np.maximum(cross, 1e-12), 1.0)
-        cells = np.floor(np.minimum(inv_sin, self.cfg.graze_margin_m / self.resolution + 1.0)).astype(np.int64) - 1
-        out = np.zeros(is_hit.size, dtype=np.int64)
-        out[h] = np.maximum(cells, 0)
-        return out
 
     def _flat(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Flat indices of the lattice cells ``x, y`` inside the current grid (others dropped)."""

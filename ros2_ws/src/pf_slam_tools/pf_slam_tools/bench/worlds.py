@@ -201,7 +201,17 @@ def summary_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def main(data_dir: str, out_dir: str, names=None, seeds=(0, 1, 2), sim_seeds=None,
+def section(names) -> tuple[str, str]:
+    """The results section and its title for a run over ``names`` (None: every world)."""
+    names = set(names or (BUILDINGS + SIM_WORLDS))
+    if names <= set(SIM_WORLDS):
+        return "worlds_sim", "simulated buildings with ground truth"
+    if names <= set(BUILDINGS):
+        return "worlds_buildings", "corrected-pose buildings, synthesised odometry"
+    return "worlds", "corrected-pose buildings and simulated buildings"
+
+
+def main(data_dir: str, out_dir: str, names=None, seeds=(0, 1, 2, 3, 4), sim_seeds=None,
          overrides: dict | None = None) -> str:
     out = Path(out_dir) / "worlds"
     out.mkdir(parents=True, exist_ok=True)
@@ -217,6 +227,7 @@ def main(data_dir: str, out_dir: str, names=None, seeds=(0, 1, 2), sim_seeds=Non
             f"{ODOM_SIGMA_XY_MIN_M} m per step, {ODOM_SIGMA_TH_PER_RAD} rad/rad + {ODOM_SIGMA_TH_PER_M} rad/m. "
             "Relations: every 10th scan to 10 and 100 scans later, and to its revisit (nearest scan 300 or more "
             "scans later within 3 m).")
-    (out / "worlds.md").write_text(text + "\n")
-    (out / "worlds.json").write_text(json.dumps(rows, indent=2) + "\n")
+    part = section(names)[0]
+    (out / f"{part}.md").write_text(text + "\n")
+    (out / f"{part}.json").write_text(json.dumps(rows, indent=2) + "\n")
     return text

@@ -1,5 +1,6 @@
-"""A light loop-closure back end on top of the filter: keyframes, scan-to-submap loop matches,
-an SE(2) pose graph, the trajectory bent onto the optimised keyframes.
+"""A light loop-closure back end on top of the filter (an experiment of the worlds bench, not used
+by the graph): keyframes, scan-to-submap loop matches, an SE(2) pose graph, the trajectory bent
+onto the optimised keyframes. Measured in docs/architecture.md ("Seeds and worlds"): it did not win.
 
 The filter matches every scan against the one map it builds, so its error is a random walk of
 small match errors that nothing pulls back once the robot is beyond the search window of the
@@ -17,7 +18,7 @@ perfect odometry). This back end runs on the filter's corrected poses and scans:
    consecutive keyframes, loop edges = the matches, Cauchy-weighted), first keyframe fixed;
 4. every pose is moved with its keyframe (pose' = keyframe' (+) (keyframe^-1 (+) pose)).
 
-Pure numpy + OpenCV (distance transform of the submap), no ROS, no file I/O.
+Pure numpy + OpenCV (distance transform of the submap).
 """
 from __future__ import annotations
 
@@ -28,7 +29,7 @@ from typing import Optional
 import cv2
 import numpy as np
 
-from .geometry import compose, relative_pose, wrap_angle
+from pf_slam_nodes.core.geometry import compose, relative_pose, wrap_angle
 
 
 @dataclasses.dataclass(frozen=True)
