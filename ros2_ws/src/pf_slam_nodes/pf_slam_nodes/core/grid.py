@@ -347,8 +347,8 @@ class LogOddsGrid:
         last ``1 / sin(a)`` cells and would clear the surface's own cells there: the walls and
         pillars that later rays graze fade from the map (a long corridor loses the walls ahead of
         the robot and the matches slide back). The surface is the line to the previous and to the
-        next hit beam's end, the less grazing of the two (a range jump at an edge looks grazing on
-        one side only); ``floor(1 / sin(a)) - 1`` cells are skipped (0 up to 30 degrees from the
+        next hit beam's end where the three ends lie on one line (within 5 degrees: a range jump at an
+        edge, or clutter, is no surface); ``floor(1 / sin(a)) - 1`` cells are skipped (0 up to 30 degrees from the
         normal), at most ``graze_margin_m``."""
         h = np.flatnonzero(is_hit)
         px, py = ex[h], ey[h]
@@ -360,13 +360,16 @@ class LogOddsGrid:
             norm = un * np.hypot(tx, ty)
             with np.errstate(invalid="ignore", divide="ignore"):
                 return np.where(norm > 0, norm / np.maximum(cross, 1e-12), 1.0)
-        # one-sided surface directions to the previous and the next hit; the less grazing of the two
-        # (a range jump at an edge looks grazing on one side only)
+        # the surface through the previous and the next hit's ends, where the three ends lie on one
+        # line (within 5 degrees): a smooth wall, not a range jump at an edge or clutter
         tpx, tpy = np.zeros(h.size), np.zeros(h.size)
         tnx, tny = np.zeros(h.size), np.zeros(h.size)
-        tpx[1:], tpy[1:] = px[1:] - px[:-1], py[1:] - py[:-1]
-        tnx[:-1], tny[:-1] = tpx[1:], tpy[1:]
-        inv_sin = np.minimum(inv_sin(tpx, tpy), inv_sin(tnx, tny))
+        tpx[1:-1], tpy[1:-1] = px[1:-1] - px[:-2], py[1:-1] - py[:-2]
+        tnx[1:-1], tny[1:-1] = px[2:] - px[1:-1], py[2:] - py[1:-1]
+        dot = tpx * tnx + tpy * tny
+        crs = np.abs(tpx * tny - tpy * tnx)
+        line = (dot > 0) & (crs <= math.sin(math.radians(5.0)) * np.hypot(tpx, tpy) * np.hypot(tnx, tny))
+        inv_sin = np.where(line, inv_sin(tpx + tnx, tpy + tny), 1.0)
         cells = np.floor(np.minimum(inv_sin, self.cfg.graze_margin_m / self.resolution + 1.0)).astype(np.int64) - 1
         out = np.zeros(is_hit.size, dtype=np.int64)
         out[h] = np.maximum(cells, 0)
