@@ -93,9 +93,6 @@ def test_same_seed_same_trajectory_and_multiprocess_equal(sample_run, tmp_path, 
     assert again.summary["scans_corrected"] == res.summary["scans_corrected"]
 
 
-GRAZE = 0.5  # the indoor profile's grid.graze_margin_m: the reference maps are built the same way
-
-
 def test_intel_segment_against_relations_and_reference_map(data_dir, tmp_path, ros_domain):
     """A real log: the first 300 scans of intel_910, converted at test time."""
     clf = data_dir / "carmen" / "intel_910.clf"
@@ -124,7 +121,7 @@ def test_intel_segment_against_relations_and_reference_map(data_dir, tmp_path, r
     log = read_carmen(seg)
     pairs = metrics.associate(t_est, t_ref, max_dt=1e-3)
     theta, t = metrics.align_se2(p_est[pairs[:, 0], :2], p_ref[pairs[:, 1], :2])
-    ref = LogOddsGrid(GridConfig(size_x_m=60.0, size_y_m=60.0, graze_margin_m=GRAZE), center_xy=p_ref[0, :2])
+    ref = LogOddsGrid(GridConfig(size_x_m=60.0, size_y_m=60.0), center_xy=p_ref[0, :2])
     for i, j in pairs:
         sc = log.scans[i]
         angles = sc.angle_min + sc.angle_increment * np.arange(sc.ranges.size)
@@ -142,7 +139,7 @@ def test_intel_segment_against_relations_and_reference_map(data_dir, tmp_path, r
     occ, r, o = read_map(tmp_path / "out" / "map.yaml")
     frac = wall_agreement(occ, r, o, p_est)
     # the same scans mapped at raw odometry poses, for scale: the test must be able to fail
-    odo_map = LogOddsGrid(GridConfig(size_x_m=60.0, size_y_m=60.0, graze_margin_m=GRAZE), center_xy=odo[0, :2])
+    odo_map = LogOddsGrid(GridConfig(size_x_m=60.0, size_y_m=60.0), center_xy=odo[0, :2])
     for i in range(len(log.scans)):
         sc = log.scans[i]
         odo_map.integrate_scan(odo[i], sc.ranges, sc.angle_min + sc.angle_increment * np.arange(sc.ranges.size),
