@@ -20,7 +20,7 @@ run: setup   ## the main job: the sample bag through the graph, then its error a
 test: setup
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
 
-bench: setup   ## prints tables (also written to runs/bench/carmen*.md and docs/results.md): 5 filter seeds one process, seed 0 one process per node; the eight corrected-pose buildings and three simulated worlds x 5 seeds, ROS-free loop (~60 min here)
+bench: setup   ## prints tables (also written to runs/bench/carmen*.md and docs/results.md): 5 filter seeds one process, seed 0 one process per node; the eight corrected-pose buildings and three simulated worlds x 5 seeds, ROS-free loop (~30 min here)
 	$(BIN)/pf-slam bench messages --results docs/results.md
 	$(BIN)/pf-slam bench carmen --data ../shared/data --out runs/bench --seeds 0 1 2 3 4 --results docs/results.md
 	$(BIN)/pf-slam bench carmen --data ../shared/data --out runs/bench --seeds 0 --processes multi --results docs/results.md
