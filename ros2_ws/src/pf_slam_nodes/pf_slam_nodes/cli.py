@@ -133,13 +133,14 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks: ParticleArray layout; the graph on the CARMEN logs "
                        "and on simulated car drives; the replay-only ceiling of a bag; scaling with "
                        "particles and grid size")
-    b.add_argument("what", choices=["messages", "carmen", "car", "ceiling", "scaling", "thor"])
+    b.add_argument("what", choices=["messages", "carmen", "car", "ceiling", "scaling", "thor", "worlds"])
     b.add_argument("--bag", help="ceiling: the bag to replay")
     b.add_argument("--duration", type=float, help="car, thor: simulated drive / walk length (s; default 300 / 60)")
     b.add_argument("--particles", type=int, help="car: filter.num_particles (default: kaist.yaml)")
-    b.add_argument("--data", help="carmen, scaling: the datasets folder (carmen/ inside); required for them")
+    b.add_argument("--data", help="carmen, scaling, worlds: the datasets folder (carmen/, carmen_corrected/ inside); required for them")
     b.add_argument("--out", default="runs/bench", help="where bags, runs and tables go")
-    b.add_argument("--datasets", nargs="*", help="subset of intel_910 intel_2726 mit-csail")
+    b.add_argument("--datasets", nargs="*", help="subset of intel_910 intel_2726 mit-csail (carmen), or of the "
+                   "corrected-pose buildings and simulated worlds (worlds)")
     b.add_argument("--seeds", type=int, nargs="*", default=[0])
     b.add_argument("--filter-seeds", type=int, nargs="*", default=[0],
                    help="car: the filter's random streams (filter.seed) to run on each drive")
@@ -313,7 +314,7 @@ def _bench(args) -> tuple[str | None, str, str]:
         if not args.bag:
             raise ValueError("bench ceiling needs --bag BAG")
         return None, "", json.dumps(replay_ceiling(args.bag), indent=2)
-    if args.what in ("carmen", "scaling") and not args.data:
+    if args.what in ("carmen", "scaling", "worlds") and not args.data:
         raise ValueError(f"bench {args.what} needs --data DIR (the datasets folder, with carmen/ inside)")
     if args.what == "scaling":
         from pf_slam_tools.bench import scaling
@@ -321,6 +322,11 @@ def _bench(args) -> tuple[str | None, str, str]:
         table = scaling.main(args.data, args.out, args.sweep_particles, args.sweep_grid, args.plot_dir,
                              args.seeds[0] if args.seeds else 0)
         return "scaling", "Scaling with particles and grid size", table
+    if args.what == "worlds":
+        from pf_slam_tools.bench import worlds
+        table = worlds.main(args.data, args.out, args.datasets, tuple(args.seeds))
+        part, title = worlds.section(args.datasets)
+        return part, f"Seeds and worlds: {title} (the indoor profile, ROS-free loop)", table
     from pf_slam_tools.bench import carmen
     table = carmen.main(args.data, args.out, args.datasets, tuple(args.seeds), args.processes)
     return (f"carmen_{args.processes}", f"CARMEN logs, no parameter file (the indoor profile), "

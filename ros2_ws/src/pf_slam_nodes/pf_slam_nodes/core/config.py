@@ -212,6 +212,11 @@ class GridConfig(_ConfigBase):
         Log-odds clamp.
     range_max_usable_m : float
         Beams longer than this (or without return) mark free space up to this range, no hit.
+    graze_margin_m : float
+        A beam that grazes a surface (incidence ``a`` from the normal, the surface through its
+        neighbours' ends) leaves the last ``floor(1/sin(a)) - 1`` cells before its end unchanged,
+        at most this length (m): walls and pillars grazed by later rays stay in the map. 0: every
+        beam clears up to its end cell (the seeds' behaviour).
     max_cells : int
         Bound on the grown grid (cells, rows x columns; the mapper's grid and the correlator's
         likelihood field take ~19 bytes per cell together). A scan reaching beyond what this
@@ -230,6 +235,7 @@ class GridConfig(_ConfigBase):
     clip_max: float = 5.0
     range_max_usable_m: float = 20.0
     max_cells: int = 100_000_000
+    graze_margin_m: float = 0.0
 
     def __post_init__(self) -> None:
         _check_pos("resolution_m", self.resolution_m)
@@ -257,6 +263,7 @@ class GridConfig(_ConfigBase):
         if self.clip_max <= 0:
             raise ValueError(f"clip_max must be > 0, got {self.clip_max!r}")
         _check_pos("range_max_usable_m", self.range_max_usable_m)
+        _check_nonneg("graze_margin_m", self.graze_margin_m)
         if self.size_x_m / self.resolution_m > 50000 or self.size_y_m / self.resolution_m > 50000:
             raise ValueError(
                 f"size_x_m/size_y_m too large for resolution_m={self.resolution_m!r}: "

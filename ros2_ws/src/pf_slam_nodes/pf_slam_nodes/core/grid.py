@@ -327,6 +327,8 @@ class LogOddsGrid:
         # DDA: one sample per cell along the major axis; endpoint included only for no-hit beams
         n = np.maximum(np.ceil(np.maximum(np.abs(ex - sx), np.abs(ey - sy))).astype(np.int64), 1)
         counts = n + (~is_hit).astype(np.int64)
+        if self.cfg.graze_margin_m > 0 and is_hit.sum() >= 3:
+            counts = np.where(is_hit, np.maximum(n - self._graze_cells(ex, ey, sx, sy, is_hit), 0), counts)
         total = int(counts.sum())
         beam = np.repeat(np.arange(r.size), counts)
         start = np.cumsum(counts) - counts
@@ -337,6 +339,41 @@ class LogOddsGrid:
         hx = np.floor(ex[is_hit]).astype(np.int64)
         hy = np.floor(ey[is_hit]).astype(np.int64)
         return fx, fy, hx, hy
+
+    def _graze_cells(self, ex: np.ndarray, ey: np.ndarray, sx: float, sy: float, is_hit: np.ndarray) -> np.ndarray:
+        """Per beam, the cells before its end that its free trace leaves alone (``grid.graze_margin_m``).
+
+        A beam that meets a surface at incidence ``a`` runs within one cell of that surface for its
+        last ``1 / sin(a)`` cells and would clear the surface's own cells there: the walls and
+        pillars that later rays graze fade from the map (a long corridor loses the walls ahead of
+        the robot and the matches slide back). The surface is the line to the previous and to the
+        next hit beam's end where the three ends lie on one line (within 5 degrees: a range jump at an
+        edge, or clutter, is no surface); ``floor(1 / sin(a)) - 1`` cells are skipped (0 up to 30 degrees from the
+        normal), at most ``graze_margin_m``."""
+        h = np.flatnonzero(is_hit)
+        px, py = ex[h], ey[h]
+        ux, uy = px - sx, py - sy
+        un = np.hypot(ux, uy)
+
+        def inv_sin(tx, ty):
+            cross = np.abs(ux * ty - uy * tx)
+            norm = un * np.hypot(tx, ty)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                return np.where(norm > 0, norm / np.maximum(cross, 1e-12), 1.0)
+        # the surface through the previous and the next hit's ends, where the three ends lie on one
+        # line (within 5 degrees): a smooth wall, not a range jump at an edge or clutter
+        tpx, tpy = np.zeros(h.size), np.zeros(h.size)
+        tnx, tny = np.zeros(h.size), np.zeros(h.size)
+        tpx[1:-1], tpy[1:-1] = px[1:-1] - px[:-2], py[1:-1] - py[:-2]
+        tnx[1:-1], tny[1:-1] = px[2:] - px[1:-1], py[2:] - py[1:-1]
+        dot = tpx * tnx + tpy * tny
+        crs = np.abs(tpx * tny - tpy * tnx)
+        line = (dot > 0) & (crs <= math.sin(math.radians(5.0)) * np.hypot(tpx, tpy) * np.hypot(tnx, tny))
+        inv_sin = np.where(line, inv_sin(tpx + tnx, tpy + tny), 1.0)
+        cells = np.floor(np.minimum(inv_sin, self.cfg.graze_margin_m / self.resolution + 1.0)).astype(np.int64) - 1
+        out = np.zeros(is_hit.size, dtype=np.int64)
+        out[h] = np.maximum(cells, 0)
+        return out
 
     def _flat(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Flat indices of the lattice cells ``x, y`` inside the current grid (others dropped)."""

@@ -96,7 +96,8 @@ def targets_lines(rows: list[dict]) -> str:
         text = f"{name}: {len(rs)} runs, wall {min(walls):.1f}-{max(walls):.1f} s"
         if "rel_trans_mean" in rs[0]:
             rel = [r["rel_trans_mean"] for r in rs]
-            text += f"; relations {sum(rel) / len(rel):.3f} m on average, worst run {max(rel):.3f} m"
+            text += (f"; relations {sum(rel) / len(rel):.3f} m on average, median {sorted(rel)[(len(rel) - 1) // 2]:.3f} m, "
+                     f"worst run {max(rel):.3f} m")
             rel_max, wall_max = TARGETS.get(name, (None, None))
             if rel_max is not None:
                 text += f"; <= {rel_max} m in {sum(v <= rel_max for v in rel)} of {len(rs)}"
@@ -104,7 +105,8 @@ def targets_lines(rows: list[dict]) -> str:
                 text += f"; wall <= {wall_max:g} s in {sum(w <= wall_max for w in walls)} of {len(rs)}"
         if "ate_vs_reference_rmse" in rs[0]:
             ate = [r["ate_vs_reference_rmse"] for r in rs]
-            text += f"; ATE vs GMapping {min(ate):.3f}-{max(ate):.3f} m"
+            text += (f"; ATE vs GMapping {min(ate):.3f}-{max(ate):.3f} m, median "
+                     f"{sorted(ate)[(len(ate) - 1) // 2]:.3f} m")
         out.append(text)
     return "\n".join(out)
 

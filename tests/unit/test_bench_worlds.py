@@ -1,0 +1,78 @@
+"""The worlds bench's parts (no filter run): synthesised odometry, relations from the truth,
+the repetitive-corridors and ring drives, the scores, the loop-closure back end's optimiser."""
+import math
+
+import numpy as np
+
+from pf_slam_nodes.core.geometry import compose, relative_pose
+from pf_slam_tools.bench import backend, worlds
+from pf_slam_tools.sim import worlds as sim
+from pf_slam_tools.sim.indoor import distance_to_segments
+
+
+def _straight(n=101, step=1.0):
+    return np.stack([np.arange(n) * step, np.zeros(n), np.zeros(n)], axis=1)
+
+
+def test_synthesised_odometry_is_seeded_and_has_the_documented_errors():
+    truth = _straight()
+    a = worlds.synthesise_odometry(truth, np.random.default_rng(3))
+    b = worlds.synthesise_odometry(truth, np.random.default_rng(3))
+    assert np.array_equal(a, b)
+    assert np.array_equal(a[0], truth[0])
+    steps = np.hypot(*np.diff(a[:, :2], axis=0).T)
+    scale = abs(steps.mean() - 1.0)
+    assert 0.005 < scale < 0.035                          # 1-3 % scale error (+ noise)
+    turn = abs(math.degrees(a[-1, 2])) / 100.0            # heading bias 0.3-1 deg/m (+ noise)
+    assert 0.1 < turn < 1.5
+    assert np.hypot(*(a[-1, :2] - truth[-1, :2])) > 0.5   # it drifts
+
+
+def test_relations_include_the_revisits_of_a_loop():
+    t = np.linspace(0, 2 * math.pi, 800, endpoint=False)
+    truth = np.stack([20 * np.cos(t), 20 * np.sin(t), t + math.pi / 2], axis=1)
+    truth = np.concatenate([truth, truth[:200]])          # drives on past the start
+    pairs = worlds.relations_from_truth(truth)
+    revisits = pairs[pairs[:, 1] - pairs[:, 0] >= 300]
+    assert len(revisits) >= 15
+    assert np.all(np.hypot(*(truth[revisits[:, 1], :2] - truth[revisits[:, 0], :2]).T) <= 3.0)
+    s = worlds.score(truth, truth)
+    assert s["ate_rmse"] < 1e-9 and s["rel_mean"] < 1e-9 and s["rel_over_05"] == 0.0
+
+
+def test_simulated_drives_close_their_loop_and_keep_off_the_walls():
+    for name in ("corridors", "ring"):
+        world, truth = sim.WORLDS[name](np.random.default_rng(0))
+        length = np.hypot(*np.diff(truth[:, :2], axis=0).T).sum()
+        assert np.allclose(truth[0], 0.0)
+        assert distance_to_segments(truth[::20, :2], world.segments).min() > 0.3
+        ext = world.bounds[2:] - world.bounds[:2]
+        if name == "ring":
+            assert ext.max() > 300 - 1e-6 and length > 850
+        else:
+            assert length > 250
+        # the drive passes its start again (a loop to close)
+        late = truth[len(truth) // 2:, :2]
+        assert np.hypot(late[:, 0], late[:, 1]).min() < 1.0
+
+
+def test_backend_optimiser_pulls_a_drifted_loop_closed():
+    # a 40 m square of 1 m keyframes, its odometry edges with a heading drift, one true loop edge
+    true = [np.zeros(3)]
+    for k in range(160):
+        step = np.array([1.0, 0.0, math.pi / 2 if k % 40 == 39 else 0.0])
+        true.append(compose(true[-1], step))
+    true = np.array(true)
+    meas = [relative_pose(true[k], true[k + 1]) + np.array([0.0, 0.0, 0.004]) for k in range(160)]
+    est = [np.zeros(3)]
+    for z in meas:
+        est.append(compose(est[-1], z))
+    est = np.array(est)
+    cfg = backend.LoopConfig()
+    info = np.diag([1 / 0.03 ** 2] * 2 + [1 / 0.01 ** 2])
+    edges = [(k, k + 1, meas[k], info, False) for k in range(160)]
+    edges.append((0, 160, relative_pose(true[0], true[160]), np.diag([1 / 0.05 ** 2] * 2 + [1 / 0.01 ** 2]), False))
+    opt = backend.optimise(est, edges, cfg)
+    before = np.hypot(*(est[160, :2] - true[160, :2]))
+    after = np.hypot(*(opt[160, :2] - true[160, :2]))
+    assert before > 5.0 and after < 0.2
