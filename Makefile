@@ -8,7 +8,7 @@ PARAMS ?= ros2_ws/src/pf_slam_nodes/config/sim_indoor.yaml
 OUT ?= runs/sample
 PYTEST_ARGS ?=
 
-.PHONY: setup run test bench bench-car bench-scaling bench-thor lock clean
+.PHONY: setup lint run test bench bench-car bench-scaling bench-thor lock clean
 
 setup:
 	@bash scripts/setup.sh
@@ -17,7 +17,11 @@ run: setup   ## the main job: the sample bag through the graph, then its error a
 	$(BIN)/pf-slam run $(SAMPLE_BAG) --out $(OUT) --params $(PARAMS) --rate max
 	$(BIN)/pf-slam eval --est $(OUT)/trajectory.tum --gt bags/ground_truth.tum
 
-test: setup
+lint: setup   ## ruff: the linter and the formatter's check (ruff format . rewrites)
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+test: setup lint
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
 
 bench: setup   ## prints tables (also written to runs/bench/carmen*.md and docs/results.md): 5 filter seeds one process, seed 0 one process per node; the eight corrected-pose buildings and three simulated worlds x 5 seeds, ROS-free loop (~30 min here)

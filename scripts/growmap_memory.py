@@ -7,6 +7,7 @@ Prints, at checkpoints along the drive: distance driven, explored bounding box (
 ever touched), grid + occupancy + likelihood-field bytes, and the median ms per scan of
 integration + patch + field update over the last stretch.
 """
+
 import sys
 import time
 
@@ -40,12 +41,19 @@ def main(bag, gt, size=40.0):
         if k in marks:
             gr, fl = mapper.grid, corr.field
             r0, r1, c0, c1 = gr.touched_bounds
-            box = (r1 - r0) * (c1 - c0) * gr.resolution ** 2
+            box = (r1 - r0) * (c1 - c0) * gr.resolution**2
             gm = (gr.log_odds.nbytes + mapper._occ.nbytes) / 2**20
-            fm = (fl._dist.nbytes + fl._loglik.nbytes + fl._prob.nbytes + fl.obstacles.nbytes
-                  + (0 if corr.known is None else corr.known.nbytes)) / 2**20
-            print(f"| {dist:.0f} | {box:.0f} | {gm:.0f} | {fm:.0f} | {gm + fm:.0f} | {1000 * (gm + fm) / box:.1f} "
-                  f"| {1e3 * np.median(times[-100:]):.2f} |")
+            fm = (
+                fl._dist.nbytes
+                + fl._loglik.nbytes
+                + fl._prob.nbytes
+                + fl.obstacles.nbytes
+                + (0 if corr.known is None else corr.known.nbytes)
+            ) / 2**20
+            print(
+                f"| {dist:.0f} | {box:.0f} | {gm:.0f} | {fm:.0f} | {gm + fm:.0f} | {1000 * (gm + fm) / box:.1f} "
+                f"| {1e3 * np.median(times[-100:]):.2f} |"
+            )
 
 
 if __name__ == "__main__":

@@ -1,11 +1,12 @@
 """Shared fixtures. ROS fixtures import rclpy lazily so tests/unit never needs it."""
+
 from __future__ import annotations
 
 import contextlib
 import os
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Callable, Iterator
 
 import pytest
 
@@ -60,8 +61,7 @@ def ros_context(ros_domain: int):
             rclpy.shutdown(context=ctx)
 
 
-def spin_until(executor, predicate: Callable[[], bool], timeout_s: float,
-               step_s: float = 0.01) -> bool:
+def spin_until(executor, predicate: Callable[[], bool], timeout_s: float, step_s: float = 0.01) -> bool:
     """Spin `executor` until `predicate()` is true or `timeout_s` passes; returns the predicate."""
     deadline = time.monotonic() + timeout_s
     while not predicate():

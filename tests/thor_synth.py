@@ -6,6 +6,7 @@ the walls (2.5 m high) and the floor, so a nod puts floor returns in the scan. J
 their own stamps, scans at 20 Hz, odometry (drifting) with each scan, an optional RGB-D stream of
 the coloured floor. Ground truth: base_link's poses, the wall segments, the floor colour.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -39,16 +40,24 @@ def ry(a):
 
 def room_segments() -> np.ndarray:
     """(S, 4) wall segments x0 y0 x1 y1: a 12 x 8 m room with three boxes."""
+
     def box(x0, y0, x1, y1):
         return [(x0, y0, x1, y0), (x1, y0, x1, y1), (x1, y1, x0, y1), (x0, y1, x0, y0)]
-    segs = box(-2.0, -4.0, 10.0, 4.0) + box(2.0, -0.8, 3.0, 0.6) + box(7.8, 2.4, 8.6, 3.2) \
-        + box(8.0, -3.3, 8.8, -2.5) + [(-2.0, 2.0, -0.8, 2.0), (9.0, -1.0, 10.0, -1.0)]
+
+    segs = (
+        box(-2.0, -4.0, 10.0, 4.0)
+        + box(2.0, -0.8, 3.0, 0.6)
+        + box(7.8, 2.4, 8.6, 3.2)
+        + box(8.0, -3.3, 8.8, -2.5)
+        + [(-2.0, 2.0, -0.8, 2.0), (9.0, -1.0, 10.0, -1.0)]
+    )
     return np.array(segs, dtype=np.float64)
 
 
 def floor_colour(x, y):
-    return np.stack([128 + 100 * np.sin(1.3 * x), 128 + 100 * np.cos(0.9 * y),
-                     80 + 60 * np.sin(0.7 * (x + y))], axis=-1)
+    return np.stack(
+        [128 + 100 * np.sin(1.3 * x), 128 + 100 * np.cos(0.9 * y), 80 + 60 * np.sin(0.7 * (x + y))], axis=-1
+    )
 
 
 def path_pose(t: float) -> np.ndarray:
@@ -99,16 +108,23 @@ class ThorSynth:
     look_down_scans: int
 
 
-def write_thor_bag(out: Path, duration_s: float = 30.0, seed: int = 0, scan_hz: float = 20.0,
-                   look_down: tuple[float, float] | None = (12.0, 13.5), rgbd_hz: float = 0.0,
-                   rgb_size: tuple[int, int] = (960, 540)) -> ThorSynth:
+def write_thor_bag(
+    out: Path,
+    duration_s: float = 30.0,
+    seed: int = 0,
+    scan_hz: float = 20.0,
+    look_down: tuple[float, float] | None = (12.0, 13.5),
+    rgbd_hz: float = 0.0,
+    rgb_size: tuple[int, int] = (960, 540),
+) -> ThorSynth:
     rng = np.random.default_rng(seed)
     segs = room_segments()
-    t0 = 1_700_000_000 * 10 ** 9
+    t0 = 1_700_000_000 * 10**9
     ns = lambda t: t0 + int(round(t * 1e9))  # noqa: E731
     f_rgb = (1049.33 * rgb_size[0] / 1920, 1051.32 * rgb_size[1] / 1080)
-    k_rgb = np.array([[f_rgb[0], 0, 956.91 * rgb_size[0] / 1920], [0, f_rgb[1], 533.45 * rgb_size[1] / 1080],
-                      [0, 0, 1]])
+    k_rgb = np.array(
+        [[f_rgb[0], 0, 956.91 * rgb_size[0] / 1920], [0, f_rgb[1], 533.45 * rgb_size[1] / 1080], [0, 0, 1]]
+    )
     events = []  # (t, topic, msg)
     # joints at 100 Hz, offset 3 ms from the scans
     for k in range(int(duration_s * 100) + 2):
@@ -116,9 +132,13 @@ def write_thor_bag(out: Path, duration_s: float = 30.0, seed: int = 0, scan_hz: 
         neck, pitch = joints(t, look_down)
         q = matrix_to_quat(rz(neck) @ ry(pitch))
         events.append((t, "/tf", B.tf_static(ns(t), [("base_link", "head", (0, 0, HEAD_Z), q)])))
-        js = B._T['sensor_msgs/msg/JointState'](
-            header=B.make_header(ns(t), ""), name=["neck", "head"], position=np.array([neck, pitch]),
-            velocity=np.zeros(0), effort=np.zeros(0))
+        js = B._T["sensor_msgs/msg/JointState"](
+            header=B.make_header(ns(t), ""),
+            name=["neck", "head"],
+            position=np.array([neck, pitch]),
+            velocity=np.zeros(0),
+            effort=np.zeros(0),
+        )
         events.append((t, "/joint_states", js))
     # scans + odometry (drifting: 2 % scale, yaw noise)
     gt, odo = [], None
@@ -156,33 +176,69 @@ def write_thor_bag(out: Path, duration_s: float = 30.0, seed: int = 0, scan_hz: 
             depth, rgb = render_rgbd(t, look_down, k_rgb, rgb_size)
             rgb_msg = B.image(ns(t + 0.004), "kinect_rgb_optical", rgb, "rgb8")
             events.append((t + 0.004, "/kinect/rgb/image_raw", rgb_msg))
-            m = B._T['sensor_msgs/msg/Image'](
-                header=B.make_header(ns(t), "kinect_depth_optical"), height=424, width=512, encoding="16UC1",
-                is_bigendian=0, step=1024, data=np.frombuffer(depth.astype("<u2").tobytes(), dtype=np.uint8))
+            m = B._T["sensor_msgs/msg/Image"](
+                header=B.make_header(ns(t), "kinect_depth_optical"),
+                height=424,
+                width=512,
+                encoding="16UC1",
+                is_bigendian=0,
+                step=1024,
+                data=np.frombuffer(depth.astype("<u2").tobytes(), dtype=np.uint8),
+            )
             events.append((t, "/kinect/depth/image_raw", m))
     events.sort(key=lambda e: e[0])
     with B.open_writer(out) as w:
         w.set_custom_data("pf_slam.format", "thor")
-        for topic, typ in [("/tf_static", "tf2_msgs/msg/TFMessage"), ("/tf", "tf2_msgs/msg/TFMessage"),
-                           ("/joint_states", "sensor_msgs/msg/JointState"), ("/scan", "sensor_msgs/msg/LaserScan"),
-                           ("/odom", "nav_msgs/msg/Odometry")]:
+        for topic, typ in [
+            ("/tf_static", "tf2_msgs/msg/TFMessage"),
+            ("/tf", "tf2_msgs/msg/TFMessage"),
+            ("/joint_states", "sensor_msgs/msg/JointState"),
+            ("/scan", "sensor_msgs/msg/LaserScan"),
+            ("/odom", "nav_msgs/msg/Odometry"),
+        ]:
             w.add_connection(topic, typ)
-        static = [("head", "lidar", (0, 0, LIDAR_UP), (0, 0, 0, 1)),
-                  ("head", "kinect", (0, 0, KINECT_UP), (0, 0, 0, 1)),
-                  ("kinect", "kinect_rgb_optical", (0, 0, 0), matrix_to_quat(OPTICAL)),
-                  ("kinect_rgb_optical", "kinect_depth_optical", tuple(T_RGB_DEPTH), (0, 0, 0, 1))]
+        static = [
+            ("head", "lidar", (0, 0, LIDAR_UP), (0, 0, 0, 1)),
+            ("head", "kinect", (0, 0, KINECT_UP), (0, 0, 0, 1)),
+            ("kinect", "kinect_rgb_optical", (0, 0, 0), matrix_to_quat(OPTICAL)),
+            ("kinect_rgb_optical", "kinect_depth_optical", tuple(T_RGB_DEPTH), (0, 0, 0, 1)),
+        ]
         w.write("/tf_static", ns(0), B.tf_static(ns(0), static))
         if rgbd_hz > 0:
             for topic in ("/kinect/rgb/image_raw", "/kinect/depth/image_raw"):
                 w.add_connection(topic, "sensor_msgs/msg/Image")
             w.add_connection("/kinect/rgb/camera_info", "sensor_msgs/msg/CameraInfo")
             w.add_connection("/kinect/depth/camera_info", "sensor_msgs/msg/CameraInfo")
-            w.write("/kinect/rgb/camera_info", ns(0), B.camera_info(
-                ns(0), "kinect_rgb_optical", rgb_size[0], rgb_size[1], "plumb_bob", np.zeros(5), k_rgb, np.eye(3),
-                np.hstack([k_rgb, np.zeros((3, 1))])))
-            w.write("/kinect/depth/camera_info", ns(0), B.camera_info(
-                ns(0), "kinect_depth_optical", 512, 424, "plumb_bob", np.zeros(5), K_IR, np.eye(3),
-                np.hstack([K_IR, np.zeros((3, 1))])))
+            w.write(
+                "/kinect/rgb/camera_info",
+                ns(0),
+                B.camera_info(
+                    ns(0),
+                    "kinect_rgb_optical",
+                    rgb_size[0],
+                    rgb_size[1],
+                    "plumb_bob",
+                    np.zeros(5),
+                    k_rgb,
+                    np.eye(3),
+                    np.hstack([k_rgb, np.zeros((3, 1))]),
+                ),
+            )
+            w.write(
+                "/kinect/depth/camera_info",
+                ns(0),
+                B.camera_info(
+                    ns(0),
+                    "kinect_depth_optical",
+                    512,
+                    424,
+                    "plumb_bob",
+                    np.zeros(5),
+                    K_IR,
+                    np.eye(3),
+                    np.hstack([K_IR, np.zeros((3, 1))]),
+                ),
+            )
         for t, topic, msg in events:
             w.write(topic, ns(t), msg)
     return ThorSynth(Path(out), np.array(gt), segs, int(duration_s * scan_hz), look_down_scans)
@@ -237,6 +293,7 @@ def evaluate_run(out: Path, synth: ThorSynth) -> dict:
     from pf_slam_nodes.core import metrics
     from pf_slam_nodes.io.mapfile import read_map
     from pf_slam_nodes.io.trajectory import read_trajectory
+
     t_e, p_e = read_trajectory(out / "trajectory.tum")
     g = synth.ground_truth
     pairs = metrics.associate(t_e, g[:, 0], max_dt=0.01)
@@ -250,13 +307,21 @@ def evaluate_run(out: Path, synth: ThorSynth) -> dict:
     e = b - a
     u = np.clip(((xy[:, None, :] - a[None]) * e[None]).sum(-1) / (e * e).sum(-1)[None], 0, 1)
     d = np.linalg.norm(xy[:, None, :] - (a[None] + u[..., None] * e[None]), axis=-1).min(axis=1)
-    out_d = {"ate_m": ate["rmse"], "n": len(pairs), "map_f1": f1["f1"], "precision": f1["precision"],
-             "recall": f1["recall"], "occupied": int(len(xy)), "false_walls": int((d > 0.3).sum())}
+    out_d = {
+        "ate_m": ate["rmse"],
+        "n": len(pairs),
+        "map_f1": f1["f1"],
+        "precision": f1["precision"],
+        "recall": f1["recall"],
+        "occupied": int(len(xy)),
+        "false_walls": int((d > 0.3).sum()),
+    }
     if (out / "texture.png").exists():
         from pf_slam_nodes.core.texture import colour_error
         from pf_slam_nodes.io.texture_files import read_floor_texture
+
         rgb, tres, torigin = read_floor_texture(out / "texture.png", out / "map.yaml")
-        rr, cc = np.mgrid[0:rgb.shape[0], 0:rgb.shape[1]]
+        rr, cc = np.mgrid[0 : rgb.shape[0], 0 : rgb.shape[1]]
         gt = floor_colour(torigin[0] + (cc + 0.5) * tres, torigin[1] + (rr + 0.5) * tres)
         err = colour_error(rgb, rgb.any(axis=2), np.clip(np.rint(gt), 0, 255).astype(np.uint8))
         out_d.update(texture_error=err["mean_abs_rgb_error"], texture_cells=err["cells_coloured"])

@@ -5,6 +5,7 @@ a replay faster than the graph) and asserts what the user gets: the counts in su
 the partial outputs, the exit code, the printed lines, and that no process or shared-memory
 segment is left behind.
 """
+
 from __future__ import annotations
 
 import fcntl
@@ -24,9 +25,9 @@ import pytest
 pytest.importorskip("rclpy")
 
 from pf_slam_nodes.core import metrics  # noqa: E402
-from pf_slam_nodes.io.evaluation import evaluate  # noqa: E402
 from pf_slam_nodes.graph import run  # noqa: E402
 from pf_slam_nodes.io.bag import TYPESTORE, bag_info, deserialize, make_time, open_writer, read_bag, stamp_ns_of  # noqa: E402
+from pf_slam_nodes.io.evaluation import evaluate  # noqa: E402
 from pf_slam_nodes.io.kaist import register_fog_batch  # noqa: E402
 from pf_slam_nodes.io.trajectory import read_trajectory  # noqa: E402
 
@@ -101,9 +102,15 @@ def test_bad_messages_are_counted_and_the_filter_goes_on(tmp_path, ros_domain):
     s = res.summary
     assert s["complete"] and s["scans_published"] == s["scans_processed"] == 240 and s["scans_dropped"] == 0
     assert {k: n for k, n in s["faults"].items() if n} == {
-        "scan_bad_ranges": 3, "scan_count_mismatch": 1, "scan_unreadable": 1, "time_backwards": 1,
-        "time_gap": 1, "odometry_nonfinite": 1, "odom_time_backwards": 1,
-        "odom_missing": 1}, s["faults"]  # the NaN odometry's scan (the unreadable one: the previous scan's)
+        "scan_bad_ranges": 3,
+        "scan_count_mismatch": 1,
+        "scan_unreadable": 1,
+        "time_backwards": 1,
+        "time_gap": 1,
+        "odometry_nonfinite": 1,
+        "odom_time_backwards": 1,
+        "odom_missing": 1,
+    }, s["faults"]  # the NaN odometry's scan (the unreadable one: the previous scan's)
     t_est, p_est = read_trajectory(tmp_path / "out" / "trajectory.tum")
     _, p_gt = read_trajectory(SAMPLE.parent / "ground_truth.tum")  # one pose per scan, same frame
     assert len(t_est) == 240 and np.isfinite(p_est).all()
@@ -115,7 +122,7 @@ def test_bad_messages_are_counted_and_the_filter_goes_on(tmp_path, ros_domain):
     c, s_ = np.cos(th), np.sin(th)
     err = np.linalg.norm(p_est[:, :2] @ np.array([[c, s_], [-s_, c]]) + tr - p_gt[:240, :2], axis=1)
     # measured 0.021 m rmse (the NaN odometry alone would have made every later pose NaN)
-    assert err.max() < 0.15 and np.sqrt(np.mean(err ** 2)) < 0.05, (err.max(), np.argmax(err))
+    assert err.max() < 0.15 and np.sqrt(np.mean(err**2)) < 0.05, (err.max(), np.argmax(err))
 
 
 def _errors(out: Path, n: int, align: np.ndarray | None = None) -> np.ndarray:
@@ -156,16 +163,23 @@ def _bad_runs_bag(path: Path) -> None:
     _edit_bag(SAMPLE, path, 600, edit)
 
 
-@pytest.mark.parametrize("sync,processes", [("exact", "single"), ("interpolate", "single"),
-                                            ("exact", "multi")])
+@pytest.mark.parametrize("sync,processes", [("exact", "single"), ("interpolate", "single"), ("exact", "multi")])
 def test_bad_messages_in_a_row_are_skipped_and_counted(tmp_path, ros_domain, sync, processes):
     """2, 5 and 50 unreadable scans in a row, 2, 5 and 50 scans' worth of NaN odometry in a row
     (4, 10 and 100 messages), 60 scans without odometry: every scan posed, each fault counted
     exactly, the trajectory on the ground truth. On main the second bad message in a row froze
     the graph ('no progress for 60 s: 150/600 scans processed')."""
     _bad_runs_bag(tmp_path / "bag")
-    res = run(str(tmp_path / "bag"), tmp_path / "out", progress=False, domain_id=ros_domain, snapshot_every=0,
-              processes=processes, overrides={"predictor": {"odom_sync": sync}}, idle_timeout_s=30.0)
+    res = run(
+        str(tmp_path / "bag"),
+        tmp_path / "out",
+        progress=False,
+        domain_id=ros_domain,
+        snapshot_every=0,
+        processes=processes,
+        overrides={"predictor": {"odom_sync": sync}},
+        idle_timeout_s=30.0,
+    )
     s = res.summary
     assert s["complete"] and s["scans_published"] == s["scans_processed"] == 600, s.get("stopped_by")
     f = s["faults"]
@@ -186,7 +200,10 @@ def test_bad_messages_in_a_row_are_skipped_and_counted(tmp_path, ros_domain, syn
     # measured: 0.07 m at most outside (rmse 0.02), 0.44 m in the 5 s of NaN odometry (a turn,
     # interpolated), 2.2 m in the 14 s without any (the robot drove 7 m), 0.02 m after it
     assert err[~long_].max() < 0.12 and np.sqrt(np.mean(err[~long_] ** 2)) < 0.04, err[~long_].max()
-    assert err[long_].max() < 3.0 and err[NO_ODOM[1] + 10:].max() < 0.1, (err[long_].max(), err[NO_ODOM[1] + 10:].max())
+    assert err[long_].max() < 3.0 and err[NO_ODOM[1] + 10 :].max() < 0.1, (
+        err[long_].max(),
+        err[NO_ODOM[1] + 10 :].max(),
+    )
 
 
 def test_encoder_counter_jump_is_discarded(tmp_path, ros_domain):
@@ -198,11 +215,18 @@ def test_encoder_counter_jump_is_discarded(tmp_path, ros_domain):
         if topic == "/encoders":
             n["encoders"] += 1
             if n["encoders"] >= 150:
-                msg.position = msg.position + 2.0 ** 20
+                msg.position = msg.position + 2.0**20
 
     _edit_bag(CAR, tmp_path / "bag", 400, edit)
-    res = run(str(tmp_path / "bag"), tmp_path / "out", params_file=str(KAIST), progress=False,
-              domain_id=ros_domain, snapshot_every=0, texture=False)
+    res = run(
+        str(tmp_path / "bag"),
+        tmp_path / "out",
+        params_file=str(KAIST),
+        progress=False,
+        domain_id=ros_domain,
+        snapshot_every=0,
+        texture=False,
+    )
     s = res.summary
     assert s["complete"] and s["scans_processed"] == 400
     assert s["faults"]["encoder_jump"] == 1 and s["faults"]["odometry_nonfinite"] == 0
@@ -227,8 +251,16 @@ def test_nan_encoders_and_fog_in_a_row_are_skipped(tmp_path, ros_domain):
                 msg.delta_yaw = np.full_like(msg.delta_yaw, np.nan)
 
     _edit_bag(CAR, tmp_path / "bag", 400, edit, topics=("/scan", "/encoders", "/fog"))
-    res = run(str(tmp_path / "bag"), tmp_path / "out", params_file=str(KAIST), progress=False,
-              domain_id=ros_domain, snapshot_every=0, texture=False, idle_timeout_s=30.0)
+    res = run(
+        str(tmp_path / "bag"),
+        tmp_path / "out",
+        params_file=str(KAIST),
+        progress=False,
+        domain_id=ros_domain,
+        snapshot_every=0,
+        texture=False,
+        idle_timeout_s=30.0,
+    )
     s = res.summary
     assert s["complete"] and s["scans_processed"] == 400, s.get("stopped_by")
     assert s["faults"]["odometry_nonfinite"] == len(bad_enc) + len(bad_fog), s["faults"]
@@ -239,8 +271,7 @@ def test_nan_encoders_and_fog_in_a_row_are_skipped(tmp_path, ros_domain):
 
 # ------------------------------------------------------------------ signals, dying nodes
 def _participant_segments() -> set[str]:
-    return {p.name for p in Path("/dev/shm").glob("fastrtps_*")
-            if re.fullmatch(r"fastrtps_[0-9a-f]{16}", p.name)}
+    return {p.name for p in Path("/dev/shm").glob("fastrtps_*") if re.fullmatch(r"fastrtps_[0-9a-f]{16}", p.name)}
 
 
 def _stale(names: set[str]) -> list[str]:
@@ -285,9 +316,24 @@ def _start(tmp_path: Path, *args: str, scans_first: int = 40) -> tuple[subproces
     processed (the first snapshot is written: every `scans_first` scans once a map exists)."""
     out, log = tmp_path / "out", tmp_path / "stdout.txt"
     with open(log, "w") as fh:
-        proc = subprocess.Popen([sys.executable, "-m", "pf_slam_nodes.cli", "run", str(SAMPLE), "--out", str(out),
-                                 "--rate", "5", "--snapshot-every", str(scans_first), *args],
-                                stdout=fh, stderr=subprocess.STDOUT)
+        proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "pf_slam_nodes.cli",
+                "run",
+                str(SAMPLE),
+                "--out",
+                str(out),
+                "--rate",
+                "5",
+                "--snapshot-every",
+                str(scans_first),
+                *args,
+            ],
+            stdout=fh,
+            stderr=subprocess.STDOUT,
+        )
     deadline = time.monotonic() + 90
     while not list((out / "snapshots").glob("scan_*.png")):
         assert proc.poll() is None and time.monotonic() < deadline, log.read_text()
@@ -310,8 +356,14 @@ def _assert_partial(out: Path, proc: subprocess.Popen, log: Path, code: int, why
 def test_no_progress_stops_with_what_there_is(tmp_path, ros_domain):
     """A graph that never gets going (the replay waits for a node that does not exist) stops
     after idle_timeout_s with a summary that says why, and an empty trajectory; no map."""
-    res = run(str(SAMPLE), tmp_path / "out", progress=False, domain_id=ros_domain, idle_timeout_s=2.0,
-              overrides={"bag_replay": {"wait_for": ["predictor", "correlator", "mapper", "nobody"]}})
+    res = run(
+        str(SAMPLE),
+        tmp_path / "out",
+        progress=False,
+        domain_id=ros_domain,
+        idle_timeout_s=2.0,
+        overrides={"bag_replay": {"wait_for": ["predictor", "correlator", "mapper", "nobody"]}},
+    )
     s = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert s == res.summary and s["complete"] is False and s["map"] is None
     assert s["stopped_by"] == "no progress for 2 s: 0/600 scans processed"
@@ -354,9 +406,29 @@ def test_replay_faster_than_the_graph_counts_and_prints_drops(tmp_path, ros_doma
     queues overflow; every scan published and not processed is reported as dropped, and the
     scans that did arrive still give the right trajectory."""
     out = tmp_path / "out"
-    r = subprocess.run([sys.executable, "-m", "pf_slam_nodes.cli", "run", str(CAR), "--out", str(out),
-                        "--params", str(KAIST), "--rate", "1000", "--processes", "multi", "--no-texture",
-                        "--snapshot-every", "0"], capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pf_slam_nodes.cli",
+            "run",
+            str(CAR),
+            "--out",
+            str(out),
+            "--params",
+            str(KAIST),
+            "--rate",
+            "1000",
+            "--processes",
+            "multi",
+            "--no-texture",
+            "--snapshot-every",
+            "0",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     s = json.loads((out / "summary.json").read_text())
     assert s["scans_published"] == 2000 and s["complete"]

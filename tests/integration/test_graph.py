@@ -4,6 +4,7 @@ These tests assert on what a user gets: trajectory error against ground truth / 
 poses, walls where the reference map has them, no scan lost, the same result twice and in
 one process or many.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -14,12 +15,12 @@ import pytest
 pytest.importorskip("rclpy")
 
 from pf_slam_nodes.core import metrics  # noqa: E402
-from pf_slam_nodes.io.evaluation import evaluate  # noqa: E402
 from pf_slam_nodes.core.config import GridConfig  # noqa: E402
 from pf_slam_nodes.core.grid import LogOddsGrid  # noqa: E402
 from pf_slam_nodes.graph import run  # noqa: E402
 from pf_slam_nodes.io.carmen import read_carmen  # noqa: E402
 from pf_slam_nodes.io.convert import convert_carmen  # noqa: E402
+from pf_slam_nodes.io.evaluation import evaluate  # noqa: E402
 from pf_slam_nodes.io.mapfile import read_map  # noqa: E402
 from pf_slam_nodes.io.trajectory import read_relations, read_trajectory  # noqa: E402
 
@@ -35,6 +36,7 @@ def _occupied_xy(occ: np.ndarray, resolution: float, origin) -> np.ndarray:
 def _fraction_near(points: np.ndarray, ref_occ: np.ndarray, res: float, origin, tol_m: float) -> float:
     """Fraction of `points` within tol_m of an occupied cell of the reference grid."""
     import cv2
+
     pad = 40  # cells: points just outside the reference grid still find its border walls
     free = np.pad((ref_occ < 65).astype(np.uint8), pad, constant_values=1)
     dist = cv2.distanceTransform(free, cv2.DIST_L2, 5) * res
@@ -84,8 +86,7 @@ def test_sample_bag_pose_error_and_map(sample_run):
 
 def test_same_seed_same_trajectory_and_multiprocess_equal(sample_run, tmp_path, module_ros_domain):
     out, res = sample_run
-    multi = run(str(SAMPLE), tmp_path / "multi", processes="multi", progress=False,
-                domain_id=module_ros_domain)
+    multi = run(str(SAMPLE), tmp_path / "multi", processes="multi", progress=False, domain_id=module_ros_domain)
     assert multi.summary["scans_dropped"] == 0
     assert (tmp_path / "multi" / "trajectory.tum").read_bytes() == (out / "trajectory.tum").read_bytes()
     again = run(str(SAMPLE), tmp_path / "again", progress=False, domain_id=module_ros_domain)
@@ -142,8 +143,9 @@ def test_intel_segment_against_relations_and_reference_map(data_dir, tmp_path, r
     odo_map = LogOddsGrid(GridConfig(size_x_m=60.0, size_y_m=60.0), center_xy=odo[0, :2])
     for i in range(len(log.scans)):
         sc = log.scans[i]
-        odo_map.integrate_scan(odo[i], sc.ranges, sc.angle_min + sc.angle_increment * np.arange(sc.ranges.size),
-                               None, 0.0, sc.range_max)
+        odo_map.integrate_scan(
+            odo[i], sc.ranges, sc.angle_min + sc.angle_increment * np.arange(sc.ranges.size), None, 0.0, sc.range_max
+        )
     frac_odo = wall_agreement(odo_map.occupancy(), odo_map.resolution, odo_map.origin, odo)
     print("intel segment:", rel["trans_mean"], rel["rot_mean_deg"], frac, frac_odo)
     assert frac > 0.8 and frac > frac_odo + 0.1, (frac, frac_odo)
@@ -152,29 +154,32 @@ def test_intel_segment_against_relations_and_reference_map(data_dir, tmp_path, r
 def test_graph_equals_reference_loop(sample_run):
     """The node graph and the ROS-free ParticleFilterSlam compute the same trajectory."""
     from pf_slam_nodes.core import config as cfg
+    from pf_slam_nodes.core.geometry import quat_to_yaw
     from pf_slam_nodes.core.odometry import OdometryBuffer
     from pf_slam_nodes.core.slam import ParticleFilterSlam
     from pf_slam_nodes.io.bag import deserialize, read_bag, stamp_ns_of
-    from pf_slam_nodes.core.geometry import quat_to_yaw
 
     out, _ = sample_run
-    slam = ParticleFilterSlam(cfg.FilterConfig(), cfg.OdometryMotionConfig(), cfg.GridConfig(),
-                              cfg.CorrelationConfig(), cfg.ResampleConfig())
+    slam = ParticleFilterSlam(
+        cfg.FilterConfig(), cfg.OdometryMotionConfig(), cfg.GridConfig(), cfg.CorrelationConfig(), cfg.ResampleConfig()
+    )
     odom = OdometryBuffer("exact")
     poses = []
     for topic, msgtype, _, raw in read_bag(SAMPLE):
         m = deserialize(raw, msgtype)
         if topic == "/odom":
             q = m.pose.pose.orientation
-            odom.add(stamp_ns_of(m),
-                     np.array([m.pose.pose.position.x, m.pose.pose.position.y,
-                               quat_to_yaw(q.x, q.y, q.z, q.w)]))
+            odom.add(
+                stamp_ns_of(m),
+                np.array([m.pose.pose.position.x, m.pose.pose.position.y, quat_to_yaw(q.x, q.y, q.z, q.w)]),
+            )
         elif topic == "/scan":
             stamp = stamp_ns_of(m)
             o = odom.lookup(stamp, final=True)
             ang = m.angle_min + m.angle_increment * np.arange(len(m.ranges))
-            poses.append(slam.process_odometry_scan(stamp / 1e9, o, np.asarray(m.ranges, float), ang,
-                                                    m.range_min, m.range_max))
+            poses.append(
+                slam.process_odometry_scan(stamp / 1e9, o, np.asarray(m.ranges, float), ang, m.range_min, m.range_max)
+            )
     _, graph_poses = read_trajectory(out / "trajectory.tum")
     assert odom.missing == 0
     np.testing.assert_allclose(graph_poses[:, :2], np.array(poses)[:, :2], atol=1e-6)
@@ -186,8 +191,9 @@ CAR = ROOT / "bags" / "car_sample"
 def test_car_sample_encoders_fog_tilted_lidar(tmp_path, ros_domain):
     """The car: wheel encoders + batched FOG + tilted lidar, through the graph with kaist.yaml."""
     params = ROOT / "ros2_ws/src/pf_slam_nodes/config/kaist.yaml"
-    res = run(str(CAR), tmp_path / "car", params_file=str(params), progress=False, domain_id=ros_domain,
-              snapshot_every=0)
+    res = run(
+        str(CAR), tmp_path / "car", params_file=str(params), progress=False, domain_id=ros_domain, snapshot_every=0
+    )
     s = res.summary
     assert s["scans_published"] == s["scans_processed"] == 2000 and s["scans_dropped"] == 0
     assert s["particles"] == 100
@@ -205,5 +211,6 @@ def test_car_sample_encoders_fog_tilted_lidar(tmp_path, ros_domain):
     assert t["frames_processed"] + t["frames_skipped"] + t["frames_dropped"] == 2 and t["frames_processed"] >= 1
     assert t["files"] == ["texture.png", "texture_overlay.png"] and t["cells_coloured"] > 5000
     import cv2
+
     tex = cv2.imread(str(tmp_path / "car" / "texture.png"))
     assert tex.shape[:2] == occ.shape  # the /map geometry

@@ -3,6 +3,7 @@ UDPv4 only (no shared memory), bag_replay + predictor on one, correlator + mappe
 The trajectory (read back through the mapper's save_map service) equals `pf-slam run` in one
 process. Needs root and `ip netns` (CI runs as root); skipped, saying why, where namespaces are
 refused."""
+
 from __future__ import annotations
 
 import contextlib
@@ -38,21 +39,26 @@ def two_hosts():
     ns = {h: f"{tag}_{h}" for h in HOSTS}
     made: list[str] = []
     try:
-        for h, name in ns.items():
+        for name in ns.values():
             r = _ip("netns", "add", name)
             if r.returncode != 0:
-                pytest.skip(f"`ip netns add` refused here ({r.stderr.strip()}): the two-host test needs root "
-                            "and network namespaces")
+                pytest.skip(
+                    f"`ip netns add` refused here ({r.stderr.strip()}): the two-host test needs root "
+                    "and network namespaces"
+                )
             made.append(name)
         r = _ip("link", "add", f"{tag}a", "type", "veth", "peer", "name", f"{tag}b")
         if r.returncode != 0:
             pytest.skip(f"`ip link add ... type veth` refused here ({r.stderr.strip()})")
         for h, name in ns.items():
             dev, addr = f"{tag}{h}", HOSTS[h][0]
-            for cmd in (["link", "set", dev, "netns", name], ["-n", name, "addr", "add", f"{addr}/24", "dev", dev],
-                        ["-n", name, "link", "set", dev, "up", "multicast", "on"],
-                        ["-n", name, "link", "set", "lo", "up"],
-                        ["-n", name, "route", "add", "224.0.0.0/4", "dev", dev]):
+            for cmd in (
+                ["link", "set", dev, "netns", name],
+                ["-n", name, "addr", "add", f"{addr}/24", "dev", dev],
+                ["-n", name, "link", "set", dev, "up", "multicast", "on"],
+                ["-n", name, "link", "set", "lo", "up"],
+                ["-n", name, "route", "add", "224.0.0.0/4", "dev", dev],
+            ):
                 r = _ip(*cmd)
                 assert r.returncode == 0, (cmd, r.stderr)
         yield ns
@@ -63,8 +69,14 @@ def two_hosts():
 
 def _host_env(host: str, domain: int) -> dict[str, str]:
     other = HOSTS["b" if host == "a" else "a"][0]
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="SUBNET",
-               ROS_STATIC_PEERS=other, FASTDDS_BUILTIN_TRANSPORTS="UDPv4", RMW_IMPLEMENTATION="rmw_fastrtps_cpp")
+    env = dict(
+        os.environ,
+        ROS_DOMAIN_ID=str(domain),
+        ROS_AUTOMATIC_DISCOVERY_RANGE="SUBNET",
+        ROS_STATIC_PEERS=other,
+        FASTDDS_BUILTIN_TRANSPORTS="UDPv4",
+        RMW_IMPLEMENTATION="rmw_fastrtps_cpp",
+    )
     for k in ("ROS_LOCALHOST_ONLY", "ROS_DISCOVERY_SERVER", "FASTRTPS_DEFAULT_PROFILES_FILE"):
         env.pop(k, None)
     return env
@@ -83,11 +95,29 @@ print(f.result().message if f.done() else "no answer")
 def test_nodes_on_two_hosts_give_the_one_process_trajectory(tmp_path, ros_domain):
     from pf_slam_nodes.graph import _plan, run
     from pf_slam_nodes.runner.params import unflatten
+
     ref = run(str(SAMPLE), tmp_path / "ref", params_file=str(SIM), progress=False, record=False, snapshot_every=0)
     assert ref.summary["scans_processed"] == 600
-    plan = _plan(str(SAMPLE), str(SIM), "max", "multi", None, False, False, None, None,
-                 dict(executor="single", record_map_every_s=None, snapshot_every=0, progress=False,
-                      idle_timeout_s=60.0, drain_timeout_s=5.0, texture_timeout_s=1.0))
+    plan = _plan(
+        str(SAMPLE),
+        str(SIM),
+        "max",
+        "multi",
+        None,
+        False,
+        False,
+        None,
+        None,
+        dict(
+            executor="single",
+            record_map_every_s=None,
+            snapshot_every=0,
+            progress=False,
+            idle_timeout_s=60.0,
+            drain_timeout_s=5.0,
+            texture_timeout_s=1.0,
+        ),
+    )
     per_node = plan.per_node
     for n in ("predictor", "correlator"):
         per_node[n]["expected_observers"] = 0  # no recorder on either host
@@ -98,21 +128,44 @@ def test_nodes_on_two_hosts_give_the_one_process_trajectory(tmp_path, ros_domain
             for host, (_, names) in HOSTS.items():
                 for name in names:
                     pfile = tmp_path / f"{name}.yaml"
-                    pfile.write_text(yaml.safe_dump({name: {"ros__parameters": {
-                        "use_sim_time": False, **unflatten(per_node[name])}}}))
+                    pfile.write_text(
+                        yaml.safe_dump(
+                            {name: {"ros__parameters": {"use_sim_time": False, **unflatten(per_node[name])}}}
+                        )
+                    )
                     log = open(tmp_path / f"{name}.log", "w")
-                    procs.append(subprocess.Popen(
-                        ["ip", "netns", "exec", ns[host], sys.executable, "-m", f"pf_slam_nodes.nodes.{name}",
-                         "--ros-args", "--params-file", str(pfile)],
-                        env=_host_env(host, ros_domain), stdout=log, stderr=subprocess.STDOUT))
+                    procs.append(
+                        subprocess.Popen(
+                            [
+                                "ip",
+                                "netns",
+                                "exec",
+                                ns[host],
+                                sys.executable,
+                                "-m",
+                                f"pf_slam_nodes.nodes.{name}",
+                                "--ros-args",
+                                "--params-file",
+                                str(pfile),
+                            ],
+                            env=_host_env(host, ros_domain),
+                            stdout=log,
+                            stderr=subprocess.STDOUT,
+                        )
+                    )
             deadline, poses = time.monotonic() + 240, np.zeros((0, 8))
             out = tmp_path / "saved"
             while time.monotonic() < deadline:
                 time.sleep(3.0)
                 dead = [p.args[5] for p in procs if p.poll() is not None]
                 assert not dead, (dead, [(tmp_path / f"{n}.log").read_text()[-2000:] for n in ("predictor", "mapper")])
-                r = subprocess.run(["ip", "netns", "exec", ns["a"], sys.executable, "-c", SAVE, str(out)],
-                                   env=_host_env("a", ros_domain), capture_output=True, text=True, timeout=90)
+                r = subprocess.run(
+                    ["ip", "netns", "exec", ns["a"], sys.executable, "-c", SAVE, str(out)],
+                    env=_host_env("a", ros_domain),
+                    capture_output=True,
+                    text=True,
+                    timeout=90,
+                )
                 if (out / "trajectory.tum").is_file():
                     poses = np.loadtxt(out / "trajectory.tum", ndmin=2)
                     if len(poses) >= 600:

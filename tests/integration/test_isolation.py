@@ -7,6 +7,7 @@ run alone, byte for byte; a foreign node on domain 0 publishing junk /scan and /
 reach a run, and must not receive anything from it. An explicit domain (--domain N) stays open,
 so rviz2 or Foxglove can watch.
 """
+
 from __future__ import annotations
 
 import json
@@ -25,8 +26,13 @@ ROOT = Path(__file__).resolve().parents[2]
 SAMPLE = ROOT / "bags" / "sample_indoor"
 PARAMS = ROOT / "ros2_ws/src/pf_slam_nodes/config/sim_indoor.yaml"
 #: what a user's shell may have that would join a run to other graphs; unset for these runs
-ROS_ENV = ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS", "ROS_LOCALHOST_ONLY",
-           "ROS_DISCOVERY_SERVER")
+ROS_ENV = (
+    "ROS_DOMAIN_ID",
+    "ROS_AUTOMATIC_DISCOVERY_RANGE",
+    "ROS_STATIC_PEERS",
+    "ROS_LOCALHOST_ONLY",
+    "ROS_DISCOVERY_SERVER",
+)
 
 
 def _user_env() -> dict[str, str]:
@@ -34,11 +40,26 @@ def _user_env() -> dict[str, str]:
 
 
 def _start(out: Path, processes: str = "single", *extra: str, env: dict | None = None) -> subprocess.Popen:
-    cmd = [sys.executable, "-c", "import sys; from pf_slam_nodes.cli import main; sys.exit(main())",
-           "run", str(SAMPLE), "--out", str(out), "--params", str(PARAMS), "--rate", "max",
-           "--processes", processes, "--snapshot-every", "0", "--no-record", *extra]
-    return subprocess.Popen(cmd, env=env or _user_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
+    cmd = [
+        sys.executable,
+        "-c",
+        "import sys; from pf_slam_nodes.cli import main; sys.exit(main())",
+        "run",
+        str(SAMPLE),
+        "--out",
+        str(out),
+        "--params",
+        str(PARAMS),
+        "--rate",
+        "max",
+        "--processes",
+        processes,
+        "--snapshot-every",
+        "0",
+        "--no-record",
+        *extra,
+    ]
+    return subprocess.Popen(cmd, env=env or _user_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
 def _finish(p: subprocess.Popen, out: Path, timeout_s: float = 400.0) -> dict:
@@ -119,11 +140,17 @@ class _Foreign:
             else:
                 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = old
         self.received = {t: 0 for t in self.WATCHED}
-        types = {"/pose": PoseStamped, "/map": OccupancyGrid, "/particles/updated": ParticleArray,
-                 "/particles/predicted": ParticleArray, "/pf_slam/status": String}
+        types = {
+            "/pose": PoseStamped,
+            "/map": OccupancyGrid,
+            "/particles/updated": ParticleArray,
+            "/particles/predicted": ParticleArray,
+            "/pf_slam/status": String,
+        }
         for t, cls in types.items():
-            self.node.create_subscription(cls, t, lambda _m, t=t: self._count(t),
-                                          qos.latched() if t in ("/map", "/pf_slam/status") else 10)
+            self.node.create_subscription(
+                cls, t, lambda _m, t=t: self._count(t), qos.latched() if t in ("/map", "/pf_slam/status") else 10
+            )
         self.scan_pub = self.node.create_publisher(LaserScan, "/scan", qos.pipeline())
         self.odom_pub = self.node.create_publisher(Odometry, "/odom", qos.pipeline())
         self.LaserScan, self.Odometry = LaserScan, Odometry
@@ -135,8 +162,10 @@ class _Foreign:
         self.received[topic] += 1
 
     def _loop(self) -> None:
-        from rclpy.executors import SingleThreadedExecutor
         import math
+
+        from rclpy.executors import SingleThreadedExecutor
+
         ex = SingleThreadedExecutor(context=self.ctx)
         ex.add_node(self.node)
         k = 0
@@ -167,6 +196,7 @@ class _Foreign:
 
     def __exit__(self, *exc) -> None:
         import rclpy
+
         self._stop.set()
         self.thread.join(10)
         self.node.destroy_node()
@@ -178,6 +208,7 @@ def test_a_foreign_graph_on_the_default_domain_does_not_reach_a_run(solo, tmp_pa
     """Junk /scan and /odom from a node on domain 0 during the whole run: the run processes its
     600 scans, the solo trajectory byte for byte; the foreign node receives nothing of the run."""
     from pf_slam_nodes.io.bag import bag_info
+
     info = bag_info(SAMPLE)
     with _Foreign(info["start_ns"], info["duration_ns"]) as foreign:
         time.sleep(1.0)  # the foreign graph is up before the run starts, as a user's would be
@@ -199,6 +230,7 @@ def test_an_explicit_domain_is_open_so_a_viewer_can_watch(solo, tmp_path, ros_do
     from rclpy.executors import SingleThreadedExecutor
 
     from pf_slam_nodes.ros import qos
+
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=ros_domain)  # ros_domain: held for this test, LOCALHOST
     got = {"/pose": 0, "/map": 0, "last_pose_ns": None}
@@ -206,18 +238,27 @@ def test_an_explicit_domain_is_open_so_a_viewer_can_watch(solo, tmp_path, ros_do
     def on_pose(m):
         got["/pose"] += 1
         got["last_pose_ns"] = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+
     try:
         viewer = rclpy.create_node("viewer", context=ctx)
         viewer.create_subscription(PoseStamped, "/pose", on_pose, qos.pipeline())
-        viewer.create_subscription(OccupancyGrid, "/map", lambda _m: got.__setitem__("/map", got["/map"] + 1),
-                                   qos.latched())
+        viewer.create_subscription(
+            OccupancyGrid, "/map", lambda _m: got.__setitem__("/map", got["/map"] + 1), qos.latched()
+        )
         ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(viewer)
         out = tmp_path / "open"
         # --delay: the replay waits 3 s once the graph is up, so the viewer has discovered the run
         # before its first scan even on a loaded machine (discovery is not instant)
-        p = _start(out, "single", "--domain", str(ros_domain), "--delay", "3",
-                   env=dict(_user_env(), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST"))
+        p = _start(
+            out,
+            "single",
+            "--domain",
+            str(ros_domain),
+            "--delay",
+            "3",
+            env=dict(_user_env(), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST"),
+        )
         while p.poll() is None:
             ex.spin_once(timeout_sec=0.01)
         deadline = time.monotonic() + 2.0
@@ -229,8 +270,7 @@ def test_an_explicit_domain_is_open_so_a_viewer_can_watch(solo, tmp_path, ros_do
     finally:
         rclpy.shutdown(context=ctx)
     _assert_same_as_solo(solo, out, s)
-    assert s["ros_domain"] == {"id": ros_domain, "isolated": False, "discovery": "LOCALHOST",
-                               "chosen_by": "--domain"}
+    assert s["ros_domain"] == {"id": ros_domain, "isolated": False, "discovery": "LOCALHOST", "chosen_by": "--domain"}
     assert f"ROS domain {ros_domain} (open" in s["_stderr"]
     # it watched from when discovery matched it (timing) to the end: the run's last pose and a map
     last_ns = int(round(float((out / "trajectory.tum").read_text().split("\n")[-2].split()[0]) * 1e9))

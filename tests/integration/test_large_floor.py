@@ -1,5 +1,6 @@
 """A map without a size, through the graph: a simulated 300 m x 150 m floor driven corner to
 corner (435 m) from a 40 m initial grid; and the car sample, whose map must not change."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -9,8 +10,8 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from pf_slam_nodes.io import evaluation  # noqa: E402
 from pf_slam_nodes.graph import run  # noqa: E402
+from pf_slam_nodes.io import evaluation  # noqa: E402
 from pf_slam_nodes.io.mapfile import read_map  # noqa: E402
 from pf_slam_tools.sim.floor import floor_world, simulate_floor  # noqa: E402
 from pf_slam_tools.sim.indoor import distance_to_segments  # noqa: E402
@@ -24,8 +25,15 @@ def floor_run(tmp_path_factory, module_ros_domain):
     d = tmp_path_factory.mktemp("floor")
     sim = simulate_floor(d, seed=0)
     out = d / "run"
-    res = run(str(sim.bag_path), out, params_file=str(PARAMS), progress=False, domain_id=module_ros_domain,
-              texture=False, record=False)
+    res = run(
+        str(sim.bag_path),
+        out,
+        params_file=str(PARAMS),
+        progress=False,
+        domain_id=module_ros_domain,
+        texture=False,
+        record=False,
+    )
     return sim, out, res
 
 
@@ -69,10 +77,25 @@ def test_car_drive_from_a_small_grid(tmp_path, ros_domain):
     kaist = ROOT / "ros2_ws" / "src" / "pf_slam_nodes" / "config" / "kaist.yaml"
     gt = ROOT / "bags" / "car_sample_ground_truth.csv"
     small = {n: {"grid.size_x_m": 20.0, "grid.size_y_m": 20.0} for n in ("mapper", "correlator")}
-    a = run(str(bag), tmp_path / "a", params_file=str(kaist), progress=False, domain_id=ros_domain,
-            texture=False, record=False)
-    b = run(str(bag), tmp_path / "b", params_file=str(kaist), progress=False, domain_id=ros_domain,
-            texture=False, record=False, overrides=small)
+    a = run(
+        str(bag),
+        tmp_path / "a",
+        params_file=str(kaist),
+        progress=False,
+        domain_id=ros_domain,
+        texture=False,
+        record=False,
+    )
+    b = run(
+        str(bag),
+        tmp_path / "b",
+        params_file=str(kaist),
+        progress=False,
+        domain_id=ros_domain,
+        texture=False,
+        record=False,
+        overrides=small,
+    )
     assert a.summary["complete"] and b.summary["complete"]
     ea = evaluation.evaluate(tmp_path / "a" / "trajectory.tum", gt)["ate"]["rmse"]
     eb = evaluation.evaluate(tmp_path / "b" / "trajectory.tum", gt)["ate"]["rmse"]

@@ -5,6 +5,7 @@ as /tf_static says and its ranges cast from that mount; the trajectories are com
 the ground truth *without alignment* (the simulator's world frame is the SLAM's map frame),
 so a map turned by the mount shows as a heading error.
 """
+
 from __future__ import annotations
 
 import math
@@ -15,10 +16,10 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from pf_slam_nodes.io.evaluation import evaluate  # noqa: E402
 from pf_slam_nodes.core.metrics import associate, wrap_angle  # noqa: E402
 from pf_slam_nodes.graph import run  # noqa: E402
 from pf_slam_nodes.io.bag import bag_info, deserialize, open_writer, read_bag, tf_static  # noqa: E402
+from pf_slam_nodes.io.evaluation import evaluate  # noqa: E402
 from pf_slam_nodes.io.mapfile import read_map  # noqa: E402
 from pf_slam_nodes.io.trajectory import read_trajectory  # noqa: E402
 from pf_slam_tools.sim.indoor import simulate_indoor  # noqa: E402
@@ -35,8 +36,10 @@ MOUNTS = {
     "yaw90_offset": [("base_link", "laser", (0.3, 0.1, 0.2), (0.0, 0.0, PI / 2))],
     "upside_down": [("base_link", "laser", (0.15, -0.05, 0.3), (PI, 0.0, 0.0))],
     # TurtleBot 4: base_link -> shell_link -> rplidar_link, the lidar turned by +90 deg
-    "chain": [("base_link", "shell_link", (0.0, 0.0, 0.09), (0.0, 0.0, 0.0)),
-              ("shell_link", "rplidar_link", (-0.04, 0.0, 0.1), (0.0, 0.0, PI / 2))],
+    "chain": [
+        ("base_link", "shell_link", (0.0, 0.0, 0.09), (0.0, 0.0, 0.0)),
+        ("shell_link", "rplidar_link", (-0.04, 0.0, 0.1), (0.0, 0.0, PI / 2)),
+    ],
 }
 
 
@@ -47,8 +50,11 @@ def errors(traj: Path, gt: Path) -> dict:
     pairs = associate(t_e, t_g, max_dt=0.02)
     e, g = p_e[pairs[:, 0]], p_g[pairs[:, 1]]
     d = np.hypot(e[:, 0] - g[:, 0], e[:, 1] - g[:, 1])
-    return {"n": len(pairs), "pos_rmse": float(np.sqrt(np.mean(d * d))),
-            "heading_max_deg": float(np.degrees(np.abs(wrap_angle(e[:, 2] - g[:, 2]))).max())}
+    return {
+        "n": len(pairs),
+        "pos_rmse": float(np.sqrt(np.mean(d * d))),
+        "heading_max_deg": float(np.degrees(np.abs(wrap_angle(e[:, 2] - g[:, 2]))).max()),
+    }
 
 
 @pytest.fixture(scope="module")
@@ -91,10 +97,21 @@ def test_offset_changes_the_trajectory_and_is_more_accurate(runs, tmp_path, modu
     """The same bag with the mount's yaw but no offset (the parameters replace the bag's mount,
     with a warning): a different, worse trajectory (main gave byte-identical ones)."""
     sim, out, _, err = runs["yaw90_offset"]
-    no_offset = {"/**": {"filter.sensor_offset_x_m": 0.0, "filter.sensor_offset_y_m": 0.0,
-                         "filter.sensor_offset_yaw_rad": PI / 2}}
-    res = run(str(sim.bag_path), tmp_path / "r", params_file=PARAMS, overrides=no_offset, progress=False,
-              domain_id=module_ros_domain)
+    no_offset = {
+        "/**": {
+            "filter.sensor_offset_x_m": 0.0,
+            "filter.sensor_offset_y_m": 0.0,
+            "filter.sensor_offset_yaw_rad": PI / 2,
+        }
+    }
+    res = run(
+        str(sim.bag_path),
+        tmp_path / "r",
+        params_file=PARAMS,
+        overrides=no_offset,
+        progress=False,
+        domain_id=module_ros_domain,
+    )
     assert res.summary["lidar_mount"]["used"].startswith("lidar mount from the parameters: ")
     assert any("replaces the bag's" in w for w in res.summary["lidar_mount"]["warnings"])
     with_offset = (out / "trajectory.tum").read_bytes()
@@ -113,6 +130,7 @@ def test_a_mount_equals_scans_turned_to_match_it(runs, tmp_path, module_ros_doma
         msg.angle_min += PI
         msg.angle_max += PI
         return msg
+
     _copy_bag(sim.bag_path, turned, scan=turn, drop_tf=True)
     run(str(turned), tmp_path / "r", params_file=PARAMS, progress=False, domain_id=module_ros_domain)
     t_a, p_a = read_trajectory(out / "trajectory.tum")
@@ -145,13 +163,24 @@ def test_scan_frame_missing_from_tf_static_warns_and_the_parameters_apply(runs, 
     parameters' mount (here the true one) applies and the mapper publishes it."""
     sim = runs["yaw90_offset"][0]
     bag = tmp_path / "no_laser_tf"
-    _copy_bag(sim.bag_path, bag, tf=lambda m: tf_static(
-        m.transforms[0].header.stamp.sec * 10**9 + m.transforms[0].header.stamp.nanosec,
-        [("base_link", "imu_link", (0.0, 0.0, 0.1), (0.0, 0.0, 0.0, 1.0))]))
-    mount = {"/**": {"filter.sensor_offset_x_m": 0.3, "filter.sensor_offset_y_m": 0.1,
-                     "filter.sensor_offset_yaw_rad": PI / 2}}
-    res = run(str(bag), tmp_path / "r", params_file=PARAMS, overrides=mount, progress=False,
-              domain_id=module_ros_domain)
+    _copy_bag(
+        sim.bag_path,
+        bag,
+        tf=lambda m: tf_static(
+            m.transforms[0].header.stamp.sec * 10**9 + m.transforms[0].header.stamp.nanosec,
+            [("base_link", "imu_link", (0.0, 0.0, 0.1), (0.0, 0.0, 0.0, 1.0))],
+        ),
+    )
+    mount = {
+        "/**": {
+            "filter.sensor_offset_x_m": 0.3,
+            "filter.sensor_offset_y_m": 0.1,
+            "filter.sensor_offset_yaw_rad": PI / 2,
+        }
+    }
+    res = run(
+        str(bag), tmp_path / "r", params_file=PARAMS, overrides=mount, progress=False, domain_id=module_ros_domain
+    )
     w = res.summary["lidar_mount"]["warnings"]
     assert len(w) == 1 and "no transform to the scan's frame 'laser'" in w[0] and "base_link -> imu_link" in w[0], w
     err = errors(tmp_path / "r" / "trajectory.tum", sim.ground_truth_path)
@@ -159,8 +188,9 @@ def test_scan_frame_missing_from_tf_static_warns_and_the_parameters_apply(runs, 
     # without /tf_static at all, the parameters are the mount too: the same trajectory
     bare = tmp_path / "no_tf_static"
     _copy_bag(sim.bag_path, bare, drop_tf=True)
-    res2 = run(str(bare), tmp_path / "r2", params_file=PARAMS, overrides=mount, progress=False,
-               domain_id=module_ros_domain)
+    res2 = run(
+        str(bare), tmp_path / "r2", params_file=PARAMS, overrides=mount, progress=False, domain_id=module_ros_domain
+    )
     assert not res2.summary["lidar_mount"]["warnings"]
     assert (tmp_path / "r2" / "trajectory.tum").read_bytes() == (tmp_path / "r" / "trajectory.tum").read_bytes()
 
@@ -173,6 +203,7 @@ def _limited(spurious: bool):
     """Scan editor: header range_max 12 m; real returns beyond it kept (as an RPLidar reports
     them, up to 20 m here) and ~5 % of the beams replaced by spurious 15-22 m values
     (`spurious`), or both NaN (the reference: beams every stage ignores)."""
+
     def edit(k, msg):
         r = np.array(msg.ranges, dtype=np.float32)
         rng = np.random.default_rng([7, k])
@@ -185,6 +216,7 @@ def _limited(spurious: bool):
         msg.range_max = RANGE_MAX
         msg.ranges = r
         return msg
+
     return edit
 
 
@@ -207,7 +239,7 @@ def test_returns_beyond_range_max_are_neither_hits_nor_free_space(tmp_path, modu
     ref, junk = tmp_path / "ref", tmp_path / "junk"
     _copy_bag(SAMPLE, ref, scan=_limited(False))
     _copy_bag(SAMPLE, junk, scan=_limited(True))
-    a = run(str(ref), tmp_path / "a", params_file=PARAMS, progress=False, domain_id=module_ros_domain)
+    run(str(ref), tmp_path / "a", params_file=PARAMS, progress=False, domain_id=module_ros_domain)
     b = run(str(junk), tmp_path / "b", params_file=PARAMS, progress=False, domain_id=module_ros_domain)
     assert b.summary["complete"] and b.summary["scans_processed"] == 600
     assert b.summary["faults"]["scan_bad_ranges"] == 0  # beyond range_max is no return, not a fault
@@ -224,6 +256,7 @@ def test_scans_with_unusable_limits_are_counted_and_posed_from_odometry(tmp_path
     """range_max 0 (scans 100-139), range_min > range_max (140-149), NaN range_max (150-154):
     counted as scan_bad_limits, posed from odometry, never corrected or mapped with (main: no
     fault, 332 'corrected' scans)."""
+
     def edit(k, msg):
         if 100 <= k < 140:
             msg.range_max = 0.0
@@ -232,6 +265,7 @@ def test_scans_with_unusable_limits_are_counted_and_posed_from_odometry(tmp_path
         elif 150 <= k < 155:
             msg.range_max = float("nan")
         return msg
+
     bag = tmp_path / "bad_limits"
     _copy_bag(SAMPLE, bag, scan=edit)
     res = run(str(bag), tmp_path / "r", params_file=PARAMS, progress=False, domain_id=module_ros_domain)

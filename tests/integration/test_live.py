@@ -2,6 +2,7 @@
 (`pf-slam play --clock`, as `ros2 bag play --clock`), the mapper's services called by an rclpy
 client. Asserts what a live user gets: every scan posed, the error against ground truth as
 `pf-slam run` on the same bag, files from save_map, pause / reset doing what they say."""
+
 from __future__ import annotations
 
 import os
@@ -31,8 +32,9 @@ class Proc:
     """A child process whose merged output is collected line by line."""
 
     def __init__(self, args: list[str], env: dict | None = None) -> None:
-        self.p = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                  env=env or dict(os.environ))
+        self.p = subprocess.Popen(
+            args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env or dict(os.environ)
+        )
         self.lines: list[str] = []
         self._t = threading.Thread(target=self._read, daemon=True)
         self._t.start()
@@ -76,9 +78,12 @@ def _start_live(out: Path, *extra: str, params: Path = SIM) -> Proc:
 def _play(bag: Path, rate: str, wait_for: str = "/odom") -> str:
     # as `ros2 bag play --delay`: the player's writers must have found the graph's readers (discovery
     # between two processes) or the first messages are not delivered; here it waits for the readers
-    r = subprocess.run(PF_SLAM + ["play", str(bag), "--rate", rate, "--clock", "--delay", "0.5",
-                                  "--wait-for", "/scan", wait_for],
-                       capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        PF_SLAM + ["play", str(bag), "--rate", rate, "--clock", "--delay", "0.5", "--wait-for", "/scan", wait_for],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0, r.stderr + r.stdout
     return r.stdout
 
@@ -88,9 +93,11 @@ class Client:
 
     def __init__(self, ctx) -> None:
         import rclpy
-        from pf_slam_interfaces.srv import SaveMap
         from rclpy.executors import SingleThreadedExecutor
         from std_srvs.srv import SetBool, Trigger
+
+        from pf_slam_interfaces.srv import SaveMap
+
         self.node = rclpy.create_node("live_test_client", context=ctx)
         self.ex = SingleThreadedExecutor(context=ctx)
         self.ex.add_node(self.node)
@@ -136,6 +143,7 @@ def _saved_until(client: Client, path: Path, n: int, timeout_s: float = 60) -> n
 def reference(tmp_path_factory):
     """`pf-slam run` on the sample bag, same parameters (isolated on its own domain)."""
     from pf_slam_nodes.graph import run
+
     out = tmp_path_factory.mktemp("ref")
     run(str(SAMPLE), out, params_file=str(SIM), progress=False, record=False, snapshot_every=0)
     return evaluate(out / "trajectory.tum", GT)["ate"]["rmse"], _poses(out / "trajectory.tum")
@@ -197,8 +205,9 @@ def test_pause_resume_reset_services(reference, tmp_path, ros_context):
     """pause freezes the map while the poses go on; resume maps again; reset starts a new, small map
     and trajectory from the next scan, in the same map frame (still close to ground truth)."""
     live = _start_live(tmp_path / "out")
-    player = Proc(PF_SLAM + ["play", str(SAMPLE), "--rate", "2", "--clock", "--delay", "0.5",
-                             "--wait-for", "/scan", "/odom"])
+    player = Proc(
+        PF_SLAM + ["play", str(SAMPLE), "--rate", "2", "--clock", "--delay", "0.5", "--wait-for", "/scan", "/odom"]
+    )
     try:
         c = Client(ros_context)
         _, SetBool, Trigger = c.types
@@ -248,9 +257,10 @@ def test_pause_resume_reset_services(reference, tmp_path, ros_context):
 
 def _tf_bag(out: Path, with_odom: bool) -> Path:
     """The sample bag with the odometry as odom -> base_link on /tf (and /odom if `with_odom`)."""
-    from pf_slam_nodes.io.bag import deserialize, open_writer, read_bag
     from pf_slam_nodes.core.geometry import quat_to_yaw
+    from pf_slam_nodes.io.bag import deserialize, open_writer, read_bag
     from pf_slam_nodes.ros import cdr
+
     tfw = cdr.TransformWriter("odom", "base_link")
     with open_writer(out) as w:
         w.add_connection("/scan", "sensor_msgs/msg/LaserScan")

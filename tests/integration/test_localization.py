@@ -7,6 +7,7 @@ and from no guess (global initialisation). Errors are against the second pass's 
 taken into the map's frame by the mapping run's own alignment to its ground truth (one fixed
 transform: the localization is not aligned again).
 """
+
 from __future__ import annotations
 
 import math
@@ -60,6 +61,7 @@ def mapped(tmp_path_factory, module_ros_domain):
 def second_pass(tmp_path_factory):
     """Seed 1 of the office simulator from 20 s on: (bag, ground-truth stamps, poses)."""
     from pf_slam_tools.sim.indoor import simulate_indoor
+
     sim = tmp_path_factory.mktemp("sim1")
     simulate_indoor(sim, seed=1, duration_s=60.0)
     t_gt, p_gt = read_trajectory(sim / "ground_truth.tum")
@@ -90,8 +92,7 @@ def _errors(out: Path, align, t_gt: np.ndarray, p_gt: np.ndarray) -> tuple[np.nd
     t_est, p_est = read_trajectory(out / "trajectory.tum")
     assert np.array_equal(np.rint(t_est * 1e9), np.rint(t_gt * 1e9))
     truth = _to_map(align, p_gt)
-    return (np.hypot(*(p_est[:, :2] - truth[:, :2]).T),
-            np.degrees(np.abs(wrap_angle(p_est[:, 2] - truth[:, 2]))))
+    return (np.hypot(*(p_est[:, :2] - truth[:, :2]).T), np.degrees(np.abs(wrap_angle(p_est[:, 2] - truth[:, 2]))))
 
 
 def _convergence(err_m: np.ndarray, err_deg: np.ndarray) -> int:
@@ -108,11 +109,13 @@ def _check(out: Path, res, align, t_gt, p_gt, what: str, init: str) -> None:
     err_m, err_deg = _errors(out, align, t_gt, p_gt)
     k = _convergence(err_m, err_deg)
     rmse = float(np.sqrt(np.mean(err_m[k:] ** 2)))
-    print(f"\n{what}: converged after {k} scans ({k / 10:.1f} s; first scan error {err_m[0]:.3f} m "
-          f"{err_deg[0]:.1f} deg), ATE after convergence rmse {rmse:.4f} m max {err_m[k:].max():.4f} m, "
-          f"heading rmse {np.sqrt(np.mean(err_deg[k:] ** 2)):.2f} deg, first correction {loc['init_seconds']:.2f} s, "
-          f"wall {s['wall_time_s']:.1f} s")
-    assert k <= MAX_SCANS_TO_CONVERGE, (k, err_m[:k + 5], err_deg[:k + 5])
+    print(
+        f"\n{what}: converged after {k} scans ({k / 10:.1f} s; first scan error {err_m[0]:.3f} m "
+        f"{err_deg[0]:.1f} deg), ATE after convergence rmse {rmse:.4f} m max {err_m[k:].max():.4f} m, "
+        f"heading rmse {np.sqrt(np.mean(err_deg[k:] ** 2)):.2f} deg, first correction {loc['init_seconds']:.2f} s, "
+        f"wall {s['wall_time_s']:.1f} s"
+    )
+    assert k <= MAX_SCANS_TO_CONVERGE, (k, err_m[: k + 5], err_deg[: k + 5])
     assert rmse < 0.03 and err_m[k:].max() < CONVERGED_M
 
 
@@ -138,6 +141,7 @@ def test_localize_without_a_guess_and_the_map_is_unchanged(mapped, second_pass, 
     assert maps
     from nav_msgs.msg import OccupancyGrid
     from rclpy.serialization import deserialize_message
+
     for raw in maps:
         m = deserialize_message(raw, OccupancyGrid)
         assert (m.info.width, m.info.height) == (occ.shape[1], occ.shape[0])
@@ -151,6 +155,7 @@ def _initialpose(pose: np.ndarray):
     from geometry_msgs.msg import PoseWithCovarianceStamped
 
     from pf_slam_nodes.core.geometry import yaw_to_quat
+
     msg = PoseWithCovarianceStamped()
     msg.header.frame_id = "map"
     msg.pose.pose.position.x, msg.pose.pose.position.y = float(pose[0]), float(pose[1])
@@ -169,21 +174,25 @@ def _graph_on_served_map(ros_domain: int, correlator: dict, first_guess=None, la
     /initialpose sent before the replay starts (`first_guess`) and/or, `later` = (k, pose), once
     k scans are posed. Returns (poses by stamp, particle clouds, correlator node, mapper node)."""
     import rclpy
+    from conftest import spin_until
     from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped
     from nav_msgs.msg import OccupancyGrid
     from rclpy.executors import SingleThreadedExecutor
 
-    from conftest import spin_until
     from pf_slam_nodes.graph import NODE_NAMES, _make_node, detect_inputs, load_params, node_params
     from pf_slam_nodes.nodes.common import announce_when_matched
     from pf_slam_nodes.ros import convert, qos
 
-    layers = [detect_inputs(str(SAMPLE), bag_info(str(SAMPLE))),
-              load_params(ROOT / "ros2_ws/src/pf_slam_nodes/config/sim_indoor.yaml"),
-              {"correlator": {"mode": "localization", **correlator}, "mapper": {"mode": "localization"}},
-              {"bag_replay": {"bag": str(SAMPLE), "wait_for": ["predictor", "correlator", "mapper", "observer"]},
-               # as pf-slam run: the replay's stall, not a count of waiting scans, says odometry will not come
-               "predictor": {"odom_wait_scans": 0, "stamp_offset_s": 0.0}}]
+    layers = [
+        detect_inputs(str(SAMPLE), bag_info(str(SAMPLE))),
+        load_params(ROOT / "ros2_ws/src/pf_slam_nodes/config/sim_indoor.yaml"),
+        {"correlator": {"mode": "localization", **correlator}, "mapper": {"mode": "localization"}},
+        {
+            "bag_replay": {"bag": str(SAMPLE), "wait_for": ["predictor", "correlator", "mapper", "observer"]},
+            # as pf-slam run: the replay's stall, not a count of waiting scans, says odometry will not come
+            "predictor": {"odom_wait_scans": 0, "stamp_offset_s": 0.0},
+        },
+    ]
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=ros_domain)
     try:
@@ -197,6 +206,7 @@ def _graph_on_served_map(ros_domain: int, correlator: dict, first_guess=None, la
             poses[convert.stamp_to_ns(m.header.stamp)] = m
             if later is not None and len(poses) == later[0]:
                 pub_init.publish(_initialpose(later[1]))
+
         sub_cloud = obs.create_subscription(PoseArray, "particlecloud", clouds.append, qos.outputs(1000))
         sub_pose = obs.create_subscription(PoseStamped, "pose", on_pose, qos.pipeline())
         occ, res, origin = read_map(SAMPLE.parent / "ground_truth_map.yaml")
@@ -210,8 +220,9 @@ def _graph_on_served_map(ros_domain: int, correlator: dict, first_guess=None, la
         assert spin_until(ex, lambda: pub_init.get_subscription_count() >= 1, 30.0)
         if first_guess is not None:
             pub_init.publish(_initialpose(first_guess))
-            assert spin_until(ex, lambda: corr.stage.pending_init is not None
-                              and corr.stage.pending_init[0] is not None, 10.0)
+            assert spin_until(
+                ex, lambda: corr.stage.pending_init is not None and corr.stage.pending_init[0] is not None, 10.0
+            )
         announce_when_matched(obs, [(sub_cloud, 1), (sub_pose, 1)])  # now the replay may start
         assert spin_until(ex, lambda: mapper.last_index == 599 and mapper.total is None, 120.0)
         spin_until(ex, lambda: len(poses) == 600 and len(clouds) == corr.corrections_sent, 10.0)
@@ -226,12 +237,15 @@ def _pose_errors(poses: dict) -> np.ndarray:
     """(600, 2): position (m) and heading (rad) error of every /pose against the ground truth
     (the simulator's map is in the ground truth's frame)."""
     from pf_slam_nodes.core.geometry import quat_to_yaw
+
     t_gt, p_gt = read_trajectory(SAMPLE.parent / "ground_truth.tum")
     out = []
     for k, stamp in enumerate(sorted(poses)):
         p = poses[stamp].pose
         yaw = quat_to_yaw(p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w)
-        out.append((math.hypot(p.position.x - p_gt[k, 0], p.position.y - p_gt[k, 1]), abs(wrap_angle(yaw - p_gt[k, 2]))))
+        out.append(
+            (math.hypot(p.position.x - p_gt[k, 0], p.position.y - p_gt[k, 1]), abs(wrap_angle(yaw - p_gt[k, 2])))
+        )
     return np.array(out)
 
 
@@ -256,13 +270,20 @@ def test_initialpose_during_the_run_relocalizes(ros_domain):
     tracks the wrong place; an /initialpose at the true pose, sent once 300 scans are posed, puts
     the filter back on the truth."""
     t_gt, p_gt = read_trajectory(SAMPLE.parent / "ground_truth.tum")
-    wrong = {"localization.use_initial_pose": True, "localization.initial_pose_x_m": float(p_gt[150, 0]),
-             "localization.initial_pose_y_m": float(p_gt[150, 1]), "localization.initial_pose_yaw_rad": float(p_gt[150, 2]),
-             "localization.initial_sigma_xy_m": 0.1, "localization.initial_sigma_yaw_rad": 0.05}
+    wrong = {
+        "localization.use_initial_pose": True,
+        "localization.initial_pose_x_m": float(p_gt[150, 0]),
+        "localization.initial_pose_y_m": float(p_gt[150, 1]),
+        "localization.initial_pose_yaw_rad": float(p_gt[150, 2]),
+        "localization.initial_sigma_xy_m": 0.1,
+        "localization.initial_sigma_yaw_rad": 0.05,
+    }
     poses, _, corr, _ = _graph_on_served_map(ros_domain, wrong, later=(300, p_gt[299]))
     err = _pose_errors(poses)
-    print(f"\nbefore the /initialpose: median error {np.median(err[:300, 0]):.2f} m; "
-          f"from 20 scans after it: max {err[320:, 0].max():.3f} m")
+    print(
+        f"\nbefore the /initialpose: median error {np.median(err[:300, 0]):.2f} m; "
+        f"from 20 scans after it: max {err[320:, 0].max():.3f} m"
+    )
     assert np.median(err[:300, 0]) > 1.0  # lost
     assert err[320:, 0].max() < 0.05 and err[320:, 1].max() < math.radians(1.0)
     st = corr.stage.localization_status(30)

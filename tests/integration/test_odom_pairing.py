@@ -1,15 +1,14 @@
 """Odometry/scan pairing never hangs: a CARMEN log whose odometry comes in its
 own ODOM lines, converted and run with the CARMEN parameter file, and the same bag with exact
 pairing forced, before the run (bag inspection) and at run time (no inspection: live use)."""
+
 from __future__ import annotations
 
-import math
 import re
 import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 import yaml
 
@@ -18,7 +17,6 @@ pytest.importorskip("rclpy")
 from pf_slam_nodes import graph  # noqa: E402
 from pf_slam_nodes.core import metrics  # noqa: E402
 from pf_slam_nodes.io.bag import bag_info  # noqa: E402
-from pf_slam_nodes.io.carmen import read_carmen  # noqa: E402
 from pf_slam_nodes.io.convert import convert_carmen  # noqa: E402
 from pf_slam_nodes.io.trajectory import read_relations, read_trajectory  # noqa: E402
 
@@ -31,13 +29,14 @@ def _odom_lines_log(data_dir: Path, out: Path) -> Path:
     """The first N scans of intel_910 with the odometry moved into ODOM lines logged 13 ms after
     each scan (as a robot that publishes odometry on its own); the FLASER lines keep their
     fields (the converter takes the ODOM lines when a log has them)."""
-    lines = [ln for ln in (data_dir / "carmen" / "intel_910.clf").read_text().splitlines()
-             if ln.startswith("FLASER")][:N]
+    lines = [ln for ln in (data_dir / "carmen" / "intel_910.clf").read_text().splitlines() if ln.startswith("FLASER")][
+        :N
+    ]
     outl = []
     for ln in lines:
         tok = ln.split()
         n = int(tok[1])
-        x, y, th = tok[5 + n:8 + n]
+        x, y, th = tok[5 + n : 8 + n]
         t = float(tok[8 + n]) + 0.013
         outl += [ln, f"ODOM {x} {y} {th} 0 0 0 {t:.6f} derived {t:.6f}"]
     out.write_text("\n".join(outl) + "\n")
@@ -67,13 +66,23 @@ def test_convert_records_the_pairing_and_carmen_params_run(bags, data_dir, tmp_p
     run on the same scans with the odometry in the laser lines. On main the parameter file forced
     exact pairing: '0/300 scans processed', stopped after 60 s."""
     _, clf = bags
-    out = subprocess.run([sys.executable, "-m", "pf_slam_nodes.cli", "convert", "carmen", str(clf),
-                          str(tmp_path / "bag")], capture_output=True, text=True)
+    out = subprocess.run(
+        [sys.executable, "-m", "pf_slam_nodes.cli", "convert", "carmen", str(clf), str(tmp_path / "bag")],
+        capture_output=True,
+        text=True,
+    )
     assert out.returncode == 0, out.stderr
     assert "odom_sync interpolate" in out.stdout + out.stderr
     assert bag_info(tmp_path / "bag")["custom_data"]["pf_slam.odom_sync"] == "interpolate"
-    res = graph.run(str(tmp_path / "bag"), tmp_path / "out", params_file=str(CARMEN_YAML), progress=False,
-                    domain_id=module_ros_domain, snapshot_every=0, idle_timeout_s=30.0)
+    res = graph.run(
+        str(tmp_path / "bag"),
+        tmp_path / "out",
+        params_file=str(CARMEN_YAML),
+        progress=False,
+        domain_id=module_ros_domain,
+        snapshot_every=0,
+        idle_timeout_s=30.0,
+    )
     s = res.summary
     assert s["complete"] and s["scans_processed"] == N, s.get("stopped_by")
     assert s["odom_sync"] == {"used": "interpolate", "scans_checked": 200, "with_odometry_stamp": 0}
@@ -90,20 +99,30 @@ def test_forced_exact_falls_back_before_the_run(bags, data_dir, tmp_path, module
     forced = yaml.safe_load(CARMEN_YAML.read_text())
     forced["predictor"]["ros__parameters"]["odom_sync"] = "exact"
     (tmp_path / "forced.yaml").write_text(yaml.safe_dump(forced))
-    res = graph.run(str(tmp_path / "bag"), tmp_path / "out", params_file=str(tmp_path / "forced.yaml"),
-                    progress=False, domain_id=module_ros_domain, snapshot_every=0, idle_timeout_s=30.0)
+    res = graph.run(
+        str(tmp_path / "bag"),
+        tmp_path / "out",
+        params_file=str(tmp_path / "forced.yaml"),
+        progress=False,
+        domain_id=module_ros_domain,
+        snapshot_every=0,
+        idle_timeout_s=30.0,
+    )
     err = capfd.readouterr().err
     assert "odom_sync exact" in err and "only 0 of the first 200 scans have an odometry message" in err, err
     s = res.summary
     assert s["complete"] and s["scans_processed"] == N, s.get("stopped_by")
-    assert s["odom_sync"] == {"used": "interpolate", "requested": "exact", "scans_checked": 200,
-                              "with_odometry_stamp": 0}
+    assert s["odom_sync"] == {
+        "used": "interpolate",
+        "requested": "exact",
+        "scans_checked": 200,
+        "with_odometry_stamp": 0,
+    }
     assert s["faults"]["odom_sync_fallback"] == 1
     assert _relations(tmp_path / "out", data_dir)["trans_mean"] < 0.05
 
 
-def test_exact_without_partners_falls_back_at_run_time(bags, data_dir, tmp_path, module_ros_domain,
-                                                       monkeypatch, capfd):
+def test_exact_without_partners_falls_back_at_run_time(bags, data_dir, tmp_path, module_ros_domain, monkeypatch, capfd):
     """Live use (no bag to inspect): exact pairing, odometry at other times. The predictor sees
     5 scans without a partner while odometry stamped between them arrives, warns once and
     interpolates from there: all scans, within seconds (the run's idle limit is 20 s)."""
@@ -117,8 +136,15 @@ def test_exact_without_partners_falls_back_at_run_time(bags, data_dir, tmp_path,
         return out
 
     monkeypatch.setattr(graph, "inspect_stamps", as_if_live)
-    res = graph.run(str(tmp_path / "bag"), tmp_path / "out", progress=False, domain_id=module_ros_domain,
-                    snapshot_every=0, idle_timeout_s=20.0, overrides={"predictor": {"odom_sync": "exact"}})
+    res = graph.run(
+        str(tmp_path / "bag"),
+        tmp_path / "out",
+        progress=False,
+        domain_id=module_ros_domain,
+        snapshot_every=0,
+        idle_timeout_s=20.0,
+        overrides={"predictor": {"odom_sync": "exact"}},
+    )
     err = capfd.readouterr().err
     s = res.summary
     assert s["complete"] and s["scans_processed"] == N, s.get("stopped_by")

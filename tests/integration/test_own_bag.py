@@ -1,4 +1,5 @@
 """Bring your own bag: any rosbag2 with a LaserScan and an Odometry under its own topic names."""
+
 from __future__ import annotations
 
 import json
@@ -10,8 +11,8 @@ import pytest
 pytest.importorskip("rclpy")
 
 from pf_slam_nodes import cli  # noqa: E402
-from pf_slam_nodes.io.evaluation import evaluate  # noqa: E402
 from pf_slam_nodes.io.bag import bag_info, open_writer, read_bag  # noqa: E402
+from pf_slam_nodes.io.evaluation import evaluate  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLE = ROOT / "bags" / "sample_indoor"
@@ -28,6 +29,7 @@ def own_bag(tmp_path_factory) -> Path:
             bag.add_connection(new, bag_info(SAMPLE)["topics"][old][0])
         bag.add_connection("/battery", "std_msgs/msg/String")
         from pf_slam_nodes.io.bag import TYPESTORE
+
         battery = TYPESTORE.serialize_cdr(TYPESTORE.types["std_msgs/msg/String"](data="12.1 V"), "std_msgs/msg/String")
         for topic, _msgtype, t, raw in read_bag(SAMPLE, topics=list(RENAME)):
             bag.write_raw(RENAME[topic], t, raw)
@@ -37,9 +39,22 @@ def own_bag(tmp_path_factory) -> Path:
 
 def test_own_bag_with_topic_flags(own_bag, tmp_path, ros_domain, capfd):
     out = tmp_path / "run"
-    rc = cli.main(["run", str(own_bag), "--out", str(out), "--scan-topic", "/front/scan",
-                   "--odom-topic", "/wheel/odom", "--snapshot-every", "0",
-                   "--params", str(ROOT / "ros2_ws/src/pf_slam_nodes/config/sim_indoor.yaml")])
+    rc = cli.main(
+        [
+            "run",
+            str(own_bag),
+            "--out",
+            str(out),
+            "--scan-topic",
+            "/front/scan",
+            "--odom-topic",
+            "/wheel/odom",
+            "--snapshot-every",
+            "0",
+            "--params",
+            str(ROOT / "ros2_ws/src/pf_slam_nodes/config/sim_indoor.yaml"),
+        ]
+    )
     assert rc == 0
     err = capfd.readouterr().err
     # the report names every topic and what it is used for
@@ -54,6 +69,7 @@ def test_own_bag_with_topic_flags(own_bag, tmp_path, ros_domain, capfd):
     assert ev["n_associated"] == 600 and ev["ate"]["rmse"] < 0.10, ev["ate"]
     # result.mcap under the bag's own names; the laser mount from the parameters on /tf_static
     from pf_slam_nodes.io.bag import deserialize
+
     counts: dict[str, int] = {}
     statics = []
     for topic, msgtype, _, raw in read_bag(out / "result.mcap"):
@@ -66,6 +82,7 @@ def test_own_bag_with_topic_flags(own_bag, tmp_path, ros_domain, capfd):
 
 def test_own_bag_auto_detects_the_only_scan_and_odometry(own_bag):
     from pf_slam_nodes.graph import detect_inputs, select_inputs
+
     info = bag_info(own_bag)
     inputs = select_inputs(str(own_bag), info)
     assert inputs == {"scan": "/front/scan", "odom": "/wheel/odom"}
@@ -82,6 +99,7 @@ def _car_with_imu(path: Path, sign: float) -> Path:
     geometry as they are."""
     from pf_slam_nodes.io.bag import TYPESTORE
     from pf_slam_nodes.ros import cdr
+
     car = ROOT / "bags" / "car_sample"
     T = TYPESTORE.types
     vec = T["geometry_msgs/msg/Vector3"]
@@ -102,12 +120,16 @@ def _car_with_imu(path: Path, sign: float) -> Path:
             if last is not None:
                 rate = sign * float(dyaw.sum()) / ((end - last) / 1e9)
                 msg = T["sensor_msgs/msg/Imu"](
-                    header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](
-                        sec=end // 10**9, nanosec=end % 10**9), frame_id="imu"),
+                    header=T["std_msgs/msg/Header"](
+                        stamp=T["builtin_interfaces/msg/Time"](sec=end // 10**9, nanosec=end % 10**9), frame_id="imu"
+                    ),
                     orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
-                    orientation_covariance=np.zeros(9), angular_velocity=vec(x=0.0, y=0.0, z=rate),
-                    angular_velocity_covariance=np.zeros(9), linear_acceleration=vec(x=0.0, y=0.0, z=0.0),
-                    linear_acceleration_covariance=np.zeros(9))
+                    orientation_covariance=np.zeros(9),
+                    angular_velocity=vec(x=0.0, y=0.0, z=rate),
+                    angular_velocity_covariance=np.zeros(9),
+                    linear_acceleration=vec(x=0.0, y=0.0, z=0.0),
+                    linear_acceleration_covariance=np.zeros(9),
+                )
                 bag.write_raw("/imu/data", t, TYPESTORE.serialize_cdr(msg, "sensor_msgs/msg/Imu"))
             last = end
     return path
@@ -117,6 +139,7 @@ def test_encoders_with_an_imu_gyro(tmp_path, ros_domain):
     """An Imu next to wheel encoders is the gyro (auto-detected): with the FOG's yaw rates the
     car sample is tracked; with the rates negated it is not (so the yaw does come from it)."""
     from pf_slam_nodes.graph import run
+
     # kaist.yaml without its FOG line: the gyro's format comes from the bag (a file value would win)
     kaist = (ROOT / "ros2_ws/src/pf_slam_nodes/config/kaist.yaml").read_text()
     assert "    fog_format: batch\n" in kaist
@@ -125,8 +148,15 @@ def test_encoders_with_an_imu_gyro(tmp_path, ros_domain):
     for sign in (1.0, -1.0):
         bag = _car_with_imu(tmp_path / f"car_imu_{sign:+.0f}", sign)
         out = tmp_path / f"run_{sign:+.0f}"
-        res = run(str(bag), out, params_file=str(tmp_path / "car.yaml"), progress=False, domain_id=ros_domain,
-                  snapshot_every=0, record=False)
+        res = run(
+            str(bag),
+            out,
+            params_file=str(tmp_path / "car.yaml"),
+            progress=False,
+            domain_id=ros_domain,
+            snapshot_every=0,
+            record=False,
+        )
         assert res.summary["inputs"] == {"scan": "/scan", "encoders": "/encoders", "imu": "/imu/data"}
         assert res.summary["scans_processed"] == 2000
         ev = evaluate(out / "trajectory.tum", ROOT / "bags" / "car_sample_ground_truth.csv")

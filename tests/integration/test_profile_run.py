@@ -1,6 +1,7 @@
 """`pf-slam run BAG` without --params: the bag's converter metadata picks the profile. The car
 sample gets kaist.yaml (before: the built-in defaults, 0.05 m grid, ~0.2-0.7x real time, ATE
 metres) and the same trajectory as with --params kaist.yaml; the line and summary.json say so."""
+
 from __future__ import annotations
 
 import json
@@ -20,12 +21,17 @@ def test_car_sample_without_params_runs_the_kaist_profile(tmp_path, capfd):
     common = ["run", str(CAR), "--no-texture", "--no-record", "--snapshot-every", "0"]
     assert main(common + ["--out", str(tmp_path / "auto")]) == 0
     err = capfd.readouterr().err
-    assert ("[pf-slam] profile: kaist (bag metadata pf_slam.source=kaist:car20, written by pf-slam convert kaist); "
-            "config/kaist.yaml") in err.splitlines()
+    assert (
+        "[pf-slam] profile: kaist (bag metadata pf_slam.source=kaist:car20, written by pf-slam convert kaist); "
+        "config/kaist.yaml"
+    ) in err.splitlines()
     assert main(common + ["--out", str(tmp_path / "params"), "--params", str(KAIST)]) == 0
     auto = json.loads((tmp_path / "auto" / "summary.json").read_text())
-    assert auto["profile"] == {"name": "kaist", "file": str(KAIST.resolve()),
-                               "why": "bag metadata pf_slam.source=kaist:car20, written by pf-slam convert kaist"}
+    assert auto["profile"] == {
+        "name": "kaist",
+        "file": str(KAIST.resolve()),
+        "why": "bag metadata pf_slam.source=kaist:car20, written by pf-slam convert kaist",
+    }
     assert auto["particles"] == 100  # kaist.yaml's, not the default 30
     with_file = json.loads((tmp_path / "params" / "summary.json").read_text())
     assert with_file["profile"]["name"] == "none"  # --params is the whole tuning

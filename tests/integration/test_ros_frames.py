@@ -1,22 +1,23 @@
 """What a ROS user sees of a running graph: REP-105 transforms that agree with /pose, frame ids
 from parameters, and a latched trinary /map that a node started after the run still receives."""
+
 from __future__ import annotations
 
-import time
 import pathlib
+import time
 
 import numpy as np
 import pytest
 
 rclpy = pytest.importorskip("rclpy")
+from conftest import spin_until  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
-from conftest import spin_until  # noqa: E402
+from pf_slam_nodes.core.geometry import quat_to_yaw  # noqa: E402
 from pf_slam_nodes.core.motion import compose  # noqa: E402
 from pf_slam_nodes.graph import NODE_NAMES, _make_node, detect_inputs, load_params, node_params  # noqa: E402
 from pf_slam_nodes.io.bag import bag_info  # noqa: E402
 from pf_slam_nodes.io.mapfile import trinary  # noqa: E402
-from pf_slam_nodes.core.geometry import quat_to_yaw  # noqa: E402
 from pf_slam_nodes.nodes.common import announce_when_matched  # noqa: E402
 from pf_slam_nodes.ros import convert, qos  # noqa: E402
 
@@ -28,8 +29,7 @@ FRAMES = {"map_frame": "world", "odom_frame": "wheel_odom", "base_frame": "robot
 
 def _xy_yaw(tr) -> np.ndarray:
     r = tr.transform.rotation
-    return np.array([tr.transform.translation.x, tr.transform.translation.y,
-                     float(quat_to_yaw(r.x, r.y, r.z, r.w))])
+    return np.array([tr.transform.translation.x, tr.transform.translation.y, float(quat_to_yaw(r.x, r.y, r.z, r.w))])
 
 
 def test_rep105_transforms_and_late_map_subscriber(ros_domain):
@@ -38,9 +38,15 @@ def test_rep105_transforms_and_late_map_subscriber(ros_domain):
     from tf2_msgs.msg import TFMessage
 
     info = bag_info(str(SAMPLE))
-    layers = [detect_inputs(str(SAMPLE), info), load_params(PARAMS),
-              {"/**": dict(FRAMES), "mapper": {"publish_sensor_tf": True},
-               "bag_replay": {"bag": str(SAMPLE), "wait_for": ["predictor", "correlator", "mapper", "observer"]}}]
+    layers = [
+        detect_inputs(str(SAMPLE), info),
+        load_params(PARAMS),
+        {
+            "/**": dict(FRAMES),
+            "mapper": {"publish_sensor_tf": True},
+            "bag_replay": {"bag": str(SAMPLE), "wait_for": ["predictor", "correlator", "mapper", "observer"]},
+        },
+    ]
     assert layers[0]["mapper"] == {"publish_sensor_tf": False}  # the bag's /tf_static has the laser
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=ros_domain)
@@ -49,10 +55,19 @@ def test_rep105_transforms_and_late_map_subscriber(ros_domain):
         ex = SingleThreadedExecutor(context=ctx)
         obs = rclpy.create_node("observer", context=ctx)
         poses, tf, tf_static, paths = {}, [], [], []
-        needs = [(obs.create_subscription(PoseStamped, "pose", lambda m: poses.__setitem__(
-                      convert.stamp_to_ns(m.header.stamp), m), qos.pipeline()), 1),
-                 (obs.create_subscription(TFMessage, "/tf", lambda m: tf.extend(m.transforms), qos.outputs(10000)), 2),
-                 (obs.create_subscription(Path, "path", paths.append, qos.outputs()), 1)]
+        needs = [
+            (
+                obs.create_subscription(
+                    PoseStamped,
+                    "pose",
+                    lambda m: poses.__setitem__(convert.stamp_to_ns(m.header.stamp), m),
+                    qos.pipeline(),
+                ),
+                1,
+            ),
+            (obs.create_subscription(TFMessage, "/tf", lambda m: tf.extend(m.transforms), qos.outputs(10000)), 2),
+            (obs.create_subscription(Path, "path", paths.append, qos.outputs()), 1),
+        ]
         announce_when_matched(obs, needs)  # the replay waits for "observer" too
         obs.create_subscription(TFMessage, "/tf_static", lambda m: tf_static.extend(m.transforms), qos.latched(5))
         ex.add_node(obs)
@@ -63,18 +78,29 @@ def test_rep105_transforms_and_late_map_subscriber(ros_domain):
         assert spin_until(ex, lambda: mapper.last_index == 599 and mapper.total is None, 120.0)
 
         def all_in() -> bool:  # every scan's odom -> base, and map -> odom up to the last scan
-            return (len(poses) == 600 and sum(t.child_frame_id == "robot" for t in tf) == 600
-                    and any(t.child_frame_id == "wheel_odom" and convert.stamp_to_ns(t.header.stamp) == max(poses)
-                            for t in tf))
+            return (
+                len(poses) == 600
+                and sum(t.child_frame_id == "robot" for t in tf) == 600
+                and any(
+                    t.child_frame_id == "wheel_odom" and convert.stamp_to_ns(t.header.stamp) == max(poses) for t in tf
+                )
+            )
+
         spin_until(ex, all_in, 5.0)
         assert len(poses) == 600 and {m.header.frame_id for m in poses.values()} == {"world"}
         assert paths and paths[-1].header.frame_id == "world"
 
         # map -> odom (mapper, at corrections) composed with odom -> base (predictor, every scan) is /pose
-        odom_base = {convert.stamp_to_ns(t.header.stamp): _xy_yaw(t) for t in tf
-                     if (t.header.frame_id, t.child_frame_id) == ("wheel_odom", "robot")}
-        map_odom = sorted((convert.stamp_to_ns(t.header.stamp), _xy_yaw(t)) for t in tf
-                          if (t.header.frame_id, t.child_frame_id) == ("world", "wheel_odom"))
+        odom_base = {
+            convert.stamp_to_ns(t.header.stamp): _xy_yaw(t)
+            for t in tf
+            if (t.header.frame_id, t.child_frame_id) == ("wheel_odom", "robot")
+        }
+        map_odom = sorted(
+            (convert.stamp_to_ns(t.header.stamp), _xy_yaw(t))
+            for t in tf
+            if (t.header.frame_id, t.child_frame_id) == ("world", "wheel_odom")
+        )
         assert len(odom_base) == 600 and set(odom_base) == set(poses)
         assert 50 < len(map_odom) < 600  # one per correction (+ the end of the run)
         stamps = np.array([s for s, _ in map_odom])
@@ -84,8 +110,13 @@ def test_rep105_transforms_and_late_map_subscriber(ros_domain):
             if k < 0:
                 continue
             p = msg.pose
-            pose = np.array([p.position.x, p.position.y,
-                             float(quat_to_yaw(p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w))])
+            pose = np.array(
+                [
+                    p.position.x,
+                    p.position.y,
+                    float(quat_to_yaw(p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w)),
+                ]
+            )
             est = compose(map_odom[k][1], odom_base[stamp])
             assert np.allclose(est[:2], pose[:2], atol=1e-6), (stamp, est, pose)
             assert abs(np.angle(np.exp(1j * (est[2] - pose[2])))) < 1e-6
@@ -97,8 +128,10 @@ def test_rep105_transforms_and_late_map_subscriber(ros_domain):
 
         # /map: RELIABLE + TRANSIENT_LOCAL, depth 1, trinary; a fresh node started now still gets it
         (pub,) = obs.get_publishers_info_by_topic("/map")  # as discovered (depth is not announced)
-        assert (pub.qos_profile.reliability, pub.qos_profile.durability) == \
-            (qos.latched().reliability, qos.latched().durability)
+        assert (pub.qos_profile.reliability, pub.qos_profile.durability) == (
+            qos.latched().reliability,
+            qos.latched().durability,
+        )
         assert mapper.pub_map.qos_profile.depth == mapper.pub_meta.qos_profile.depth == 1
         occ, res, origin = mapper.stage.map_occupancy()
         expected = trinary(occ)
@@ -138,8 +171,7 @@ def test_run_records_result_mcap(tmp_path, ros_domain):
     from pf_slam_nodes.io.mapfile import read_map
     from pf_slam_nodes.io.trajectory import read_trajectory
 
-    res = run(str(SAMPLE), tmp_path, params_file=str(PARAMS), progress=False, domain_id=ros_domain,
-              snapshot_every=0)
+    res = run(str(SAMPLE), tmp_path, params_file=str(PARAMS), progress=False, domain_id=ros_domain, snapshot_every=0)
     msgs: dict[str, list] = {}
     for topic, msgtype, t, raw in read_bag(tmp_path / "result.mcap"):
         msgs.setdefault(topic, []).append((t, deserialize(raw, msgtype)))
@@ -163,7 +195,8 @@ def test_run_records_result_mcap(tmp_path, ros_domain):
     # REP-105 transforms and the path
     pairs = {(tr.header.frame_id, tr.child_frame_id) for _, m in msgs["/tf"] for tr in m.transforms}
     assert pairs == {("map", "odom"), ("odom", "base_link")}
-    assert ("base_link", "laser") in {(tr.header.frame_id, tr.child_frame_id)
-                                      for _, m in msgs["/tf_static"] for tr in m.transforms}
+    assert ("base_link", "laser") in {
+        (tr.header.frame_id, tr.child_frame_id) for _, m in msgs["/tf_static"] for tr in m.transforms
+    }
     n_corr = res.summary["scans_corrected"]
     assert len(msgs["/path"][-1][1].poses) in (n_corr, n_corr + 1)  # (+ the end-of-run pose)

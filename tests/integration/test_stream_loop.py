@@ -7,6 +7,7 @@ Same means: every scan's stamp equal, x and y equal bit for bit (float64 both wa
 carries them exactly), yaw within 1e-12 rad (the graph's pose goes out as a quaternion and
 comes back through atan2: the round trip is not exact in the last bits).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -36,7 +37,7 @@ def _section(cls, params: dict, prefix: str):
     vals = {}
     for k, v in params.items():
         if k.startswith(prefix + "."):
-            name = k[len(prefix) + 1:]
+            name = k[len(prefix) + 1 :]
             d = defaults[name]
             vals[name] = tuple(float(x) for x in v) if isinstance(d, tuple) else as_default_type(d, v)
     return cls.from_dict(vals)
@@ -58,18 +59,24 @@ def _graph_parameters(bag: Path, params_file: Path) -> tuple[dict, dict, dict]:
 def _stream_loop(bag: Path, params_file: Path) -> tuple[ParticleFilterSlam, list]:
     """The bag through the ROS-free loop, message by message in record order."""
     pred, corr, inputs = _graph_parameters(bag, params_file)
-    slam = ParticleFilterSlam(_section(cfg.FilterConfig, corr, "filter"),
-                              _section(cfg.OdometryMotionConfig, pred, "motion"),
-                              _section(cfg.GridConfig, corr, "grid"),
-                              _section(cfg.CorrelationConfig, corr, "correlation"),
-                              _section(cfg.ResampleConfig, corr, "resample"),
-                              _section(cfg.LaserConfig, corr, "laser"))
+    slam = ParticleFilterSlam(
+        _section(cfg.FilterConfig, corr, "filter"),
+        _section(cfg.OdometryMotionConfig, pred, "motion"),
+        _section(cfg.GridConfig, corr, "grid"),
+        _section(cfg.CorrelationConfig, corr, "correlation"),
+        _section(cfg.ResampleConfig, corr, "resample"),
+        _section(cfg.LaserConfig, corr, "laser"),
+    )
     assert _section(cfg.FilterConfig, pred, "filter") == slam.predictor.filter_cfg
     source = pred.get("odometry_source", "odom")
     fog = pred.get("fog_format", "none")
-    slam.open_stream(source, pred.get("odom_sync", "interpolate"),
-                     _section(cfg.WheelsConfig, pred, "wheels") if source == "encoders" else None,
-                     gyro=fog != "none", time_gap_s=float(pred.get("time_gap_s", 60.0)))
+    slam.open_stream(
+        source,
+        pred.get("odom_sync", "interpolate"),
+        _section(cfg.WheelsConfig, pred, "wheels") if source == "encoders" else None,
+        gyro=fog != "none",
+        time_gap_s=float(pred.get("time_gap_s", 60.0)),
+    )
     roles = {t: r for r, t in inputs.items()}
     for topic, _, _, raw in read_bag(bag, [inputs[r] for r in ("scan", "odom", "encoders", "fog") if r in inputs]):
         role = roles[topic]
@@ -84,10 +91,13 @@ def _stream_loop(bag: Path, params_file: Path) -> tuple[ParticleFilterSlam, list
             slam.add_gyro(*cdr.fog_batch_yaw(raw))
         else:
             from pf_slam_nodes.io.bag import deserialize, stamp_ns_of
+
             m = deserialize(raw, "nav_msgs/msg/Odometry")
             q = m.pose.pose.orientation
-            slam.add_odometry(stamp_ns_of(m), np.array([m.pose.pose.position.x, m.pose.pose.position.y,
-                                                        quat_to_yaw(q.x, q.y, q.z, q.w)]))
+            slam.add_odometry(
+                stamp_ns_of(m),
+                np.array([m.pose.pose.position.x, m.pose.pose.position.y, quat_to_yaw(q.x, q.y, q.z, q.w)]),
+            )
     return slam, slam.end_of_stream()
 
 
@@ -106,8 +116,16 @@ def _assert_same(stream: list, res) -> None:
 def test_car_encoders_fog_stream_loop_equals_graph(tmp_path, ros_domain):
     bag, params = ROOT / "bags" / "car_sample", CONFIG / "kaist.yaml"
     slam, stream = _stream_loop(bag, params)
-    res = graph.run(str(bag), tmp_path / "car", params_file=str(params), progress=False, domain_id=ros_domain,
-                    texture=False, snapshot_every=0, record=False)
+    res = graph.run(
+        str(bag),
+        tmp_path / "car",
+        params_file=str(params),
+        progress=False,
+        domain_id=ros_domain,
+        texture=False,
+        snapshot_every=0,
+        record=False,
+    )
     assert len(stream) == 2000
     _assert_same(stream, res)
     # the same decisions: corrections, faults, the gyro's rest calibration
@@ -121,8 +139,15 @@ def test_car_encoders_fog_stream_loop_equals_graph(tmp_path, ros_domain):
 def test_sample_odometry_stream_loop_equals_graph(tmp_path, ros_domain):
     bag, params = ROOT / "bags" / "sample_indoor", CONFIG / "sim_indoor.yaml"
     slam, stream = _stream_loop(bag, params)
-    res = graph.run(str(bag), tmp_path / "sample", params_file=str(params), progress=False,
-                    domain_id=ros_domain, snapshot_every=0, record=False)
+    res = graph.run(
+        str(bag),
+        tmp_path / "sample",
+        params_file=str(params),
+        progress=False,
+        domain_id=ros_domain,
+        snapshot_every=0,
+        record=False,
+    )
     assert len(stream) == 600
     _assert_same(stream, res)
     assert not any(slam.scheduler.faults().values())

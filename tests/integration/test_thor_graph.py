@@ -5,6 +5,7 @@ Measured (seed 0, 30 s, 600 scans): ATE 0.051 m, map F1 0.988 with 2 occupied ce
 0.3 m from a wall; the same run without floor removal (laser.min_height_m -100): ATE 0.089 m and
 14 such cells (floor returns became walls); texture error 1.7 (0..255) on 30 depth pairs.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -31,8 +32,13 @@ def thor(tmp_path_factory, module_ros_domain):
     d = tmp_path_factory.mktemp("thor")
     synth = write_thor_bag(d / "bag", duration_s=30.0, seed=0, rgbd_hz=1.0)
     # every RGB-D pair queued (the node skips pairs under load by design; here all 30 are measured)
-    res = graph.run(str(synth.bag), d / "run", progress=False, domain_id=module_ros_domain,
-                    overrides={"texture": {"queue_depth": 40, "max_pending_pairs": 40}})
+    res = graph.run(
+        str(synth.bag),
+        d / "run",
+        progress=False,
+        domain_id=module_ros_domain,
+        overrides={"texture": {"queue_depth": 40, "max_pending_pairs": 40}},
+    )
     return synth, d / "run", res, evaluate_run(d / "run", synth)
 
 
@@ -67,7 +73,7 @@ def _section(cls, params: dict, prefix: str):
     vals = {}
     for k, v in params.items():
         if k.startswith(prefix + "."):
-            name = k[len(prefix) + 1:]
+            name = k[len(prefix) + 1 :]
             d = defaults[name]
             vals[name] = tuple(float(x) for x in v) if isinstance(d, tuple) else as_default_type(d, v)
     return cls.from_dict(vals)
@@ -86,11 +92,14 @@ def test_stream_loop_equals_graph(thor):
     pred, corr = graph.node_params(layers, "predictor"), graph.node_params(layers, "correlator")
     laser = _section(cfg.LaserConfig, corr, "laser")
     assert laser.dynamic_frame == "head" and laser.min_kept_fraction > 0
-    slam = ParticleFilterSlam(_section(cfg.FilterConfig, corr, "filter"),
-                              _section(cfg.OdometryMotionConfig, pred, "motion"),
-                              _section(cfg.GridConfig, corr, "grid"),
-                              _section(cfg.CorrelationConfig, corr, "correlation"),
-                              _section(cfg.ResampleConfig, corr, "resample"), laser)
+    slam = ParticleFilterSlam(
+        _section(cfg.FilterConfig, corr, "filter"),
+        _section(cfg.OdometryMotionConfig, pred, "motion"),
+        _section(cfg.GridConfig, corr, "grid"),
+        _section(cfg.CorrelationConfig, corr, "correlation"),
+        _section(cfg.ResampleConfig, corr, "resample"),
+        laser,
+    )
     slam.open_stream("odom", pred.get("odom_sync", "interpolate"))
     for topic, msgtype, _, raw in read_bag(bag, ["/scan", "/odom", "/tf"]):
         if topic == "/scan":
@@ -99,8 +108,10 @@ def test_stream_loop_equals_graph(thor):
         elif topic == "/odom":
             m = deserialize(raw, msgtype)
             q = m.pose.pose.orientation
-            slam.add_odometry(stamp_ns_of(m), np.array([m.pose.pose.position.x, m.pose.pose.position.y,
-                                                        quat_to_yaw(q.x, q.y, q.z, q.w)]))
+            slam.add_odometry(
+                stamp_ns_of(m),
+                np.array([m.pose.pose.position.x, m.pose.pose.position.y, quat_to_yaw(q.x, q.y, q.z, q.w)]),
+            )
         else:
             tr = deserialize(raw, msgtype).transforms[0]
             q, t = tr.transform.rotation, tr.transform.translation
@@ -118,7 +129,15 @@ def test_one_process_per_node_gives_the_same_trajectory(thor, tmp_path, module_r
     """The moving mount's samples are waited for on data, never on time: the same poses with
     every node in its own process (the /tf stream then arrives beside the scans, not with them)."""
     synth, out, res, _ = thor
-    multi = graph.run(str(synth.bag), tmp_path / "multi", processes="multi", progress=False,
-                      domain_id=module_ros_domain, texture=False, record=False, snapshot_every=0)
+    multi = graph.run(
+        str(synth.bag),
+        tmp_path / "multi",
+        processes="multi",
+        progress=False,
+        domain_id=module_ros_domain,
+        texture=False,
+        record=False,
+        snapshot_every=0,
+    )
     assert multi.summary["faults"]["scan_mostly_floor"] == res.summary["faults"]["scan_mostly_floor"]
     assert (tmp_path / "multi" / "trajectory.tum").read_bytes() == (out / "trajectory.tum").read_bytes()

@@ -1,13 +1,14 @@
 """Direct CDR reading/writing of the high-rate messages against rclpy's own serialization."""
+
 import array
 
 import numpy as np
 import pytest
 from geometry_msgs.msg import PoseStamped
-from pf_slam_interfaces.msg import FogBatch
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState, LaserScan
 
+from pf_slam_interfaces.msg import FogBatch
 from pf_slam_nodes.ros import cdr, convert
 
 
@@ -102,20 +103,41 @@ def test_pose_stamped_writer_round_trips_through_rclpy(frame):
 @pytest.mark.parametrize("n", [0, 1, 3])
 def test_pose_array_writer_round_trips_through_rclpy(frame, n):
     from geometry_msgs.msg import PoseArray
+
     poses, stamp = np.random.default_rng(n).normal(size=(n, 3)) * [5.0, 5.0, 3.0], 1_700_000_000_123_456_789
     msg = deserialize_message(cdr.PoseArrayWriter(frame).pack(poses, stamp), PoseArray)
-    ref = PoseArray(header=convert.pose_stamped(np.zeros(3), stamp, frame).header,
-                    poses=[convert.pose_stamped(p, stamp, frame).pose for p in poses])
+    ref = PoseArray(
+        header=convert.pose_stamped(np.zeros(3), stamp, frame).header,
+        poses=[convert.pose_stamped(p, stamp, frame).pose for p in poses],
+    )
     assert msg.header == ref.header and len(msg.poses) == n
     for a, b in zip(msg.poses, ref.poses):
-        assert np.allclose([a.position.x, a.position.y, a.position.z, a.orientation.x, a.orientation.y,
-                            a.orientation.z, a.orientation.w],
-                           [b.position.x, b.position.y, b.position.z, b.orientation.x, b.orientation.y,
-                            b.orientation.z, b.orientation.w], atol=1e-12)
+        assert np.allclose(
+            [
+                a.position.x,
+                a.position.y,
+                a.position.z,
+                a.orientation.x,
+                a.orientation.y,
+                a.orientation.z,
+                a.orientation.w,
+            ],
+            [
+                b.position.x,
+                b.position.y,
+                b.position.z,
+                b.orientation.x,
+                b.orientation.y,
+                b.orientation.z,
+                b.orientation.w,
+            ],
+            atol=1e-12,
+        )
 
 
 def test_clock_bytes_are_a_clock_message():
     from rosgraph_msgs.msg import Clock
+
     stamp = 1_318_000_000_123_456_789
     assert convert.stamp_to_ns(deserialize_message(cdr.clock_bytes(stamp), Clock).clock) == stamp
 
@@ -123,6 +145,7 @@ def test_clock_bytes_are_a_clock_message():
 @pytest.mark.parametrize("parent, child", [("odom", "base_link"), ("o", "b"), ("odom_x", "base_footprint1")])
 def test_transform_writer_is_a_tf_message(parent, child):
     from tf2_msgs.msg import TFMessage
+
     pose, stamp = np.array([3.5, -1.25, -2.0]), 1_700_000_001_000_000_007
     raw = cdr.TransformWriter(parent, child).pack(pose, stamp)
     assert deserialize_message(raw, TFMessage) == TFMessage(transforms=[convert.transform(parent, child, pose, stamp)])
@@ -147,6 +170,7 @@ def test_with_header_stamp_rewrites_only_the_stamp(stamp):
 
 def test_parse_restamp():
     from pf_slam_nodes.nodes.bag_replay import parse_restamp
+
     assert parse_restamp("") == {}
     assert parse_restamp("/scan=record,/odom=-3000000000") == {"/scan": "record", "/odom": -3_000_000_000}
     with pytest.raises(ValueError, match="restamp"):

@@ -1,6 +1,7 @@
 """An isolated Context (ros.domain.init_context) at the DDS level: its nodes talk to each other,
 a participant of another Context on the same domain never matches it (discovery OFF: Jazzy's
 rmw_fastrtps admits one participant, the local one), and the process environment is as before."""
+
 from __future__ import annotations
 
 import os
@@ -33,10 +34,13 @@ def test_isolated_context_talks_inside_and_not_to_its_domain(monkeypatch):
             foreign = rclpy.create_node("foreign", context=other_ctx)
             pub = first.create_publisher(String, "/chatter", 10)
             second.create_subscription(String, "/chatter", lambda _m: got.__setitem__("inside", got["inside"] + 1), 10)
-            foreign.create_subscription(String, "/chatter", lambda _m: got.__setitem__("foreign", got["foreign"] + 1), 10)
+            foreign.create_subscription(
+                String, "/chatter", lambda _m: got.__setitem__("foreign", got["foreign"] + 1), 10
+            )
             fpub = foreign.create_publisher(String, "/junk", 10)
-            first.create_subscription(String, "/junk",
-                                      lambda _m: got.__setitem__("from_foreign", got["from_foreign"] + 1), 10)
+            first.create_subscription(
+                String, "/junk", lambda _m: got.__setitem__("from_foreign", got["from_foreign"] + 1), 10
+            )
             ex, fex = SingleThreadedExecutor(context=ctx), SingleThreadedExecutor(context=other_ctx)
             ex.add_node(first)
             ex.add_node(second)

@@ -1,6 +1,7 @@
 """mount_from_tf: the predictor decides the lidar mount at the first scan from /tf_static + /tf
 and the correlator and the mapper take that decision before they use a scan (real nodes, real
 DDS, one Context on the test's own domain)."""
+
 from __future__ import annotations
 
 import math
@@ -20,11 +21,14 @@ def _graph(ctx, wait_s: float = 5.0):
     from pf_slam_nodes.nodes.correlator import Correlator
     from pf_slam_nodes.nodes.mapper import Mapper
     from pf_slam_nodes.nodes.predictor import Predictor
+
     ex = SingleThreadedExecutor(context=ctx)
     p = [Parameter("mount_from_tf", value=True)]
-    nodes = {"predictor": Predictor(context=ctx, parameter_overrides=p + [Parameter("mount_wait_s", value=wait_s)]),
-             "correlator": Correlator(context=ctx, parameter_overrides=p),
-             "mapper": Mapper(context=ctx, parameter_overrides=p)}
+    nodes = {
+        "predictor": Predictor(context=ctx, parameter_overrides=p + [Parameter("mount_wait_s", value=wait_s)]),
+        "correlator": Correlator(context=ctx, parameter_overrides=p),
+        "mapper": Mapper(context=ctx, parameter_overrides=p),
+    }
     for n in nodes.values():
         ex.add_node(n)
     return ex, nodes
@@ -38,6 +42,7 @@ def _publish(ctx, ex, tf_static: list, scans: int = 3):
 
     from pf_slam_nodes.core.geometry import rpy_to_quat
     from pf_slam_nodes.ros import qos
+
     src = rclpy.create_node("robot", context=ctx)
     ex.add_node(src)
     pub_static = src.create_publisher(TFMessage, "/tf_static", qos.latched(10))
@@ -65,8 +70,14 @@ def _publish(ctx, ex, tf_static: list, scans: int = 3):
 
 def test_planar_and_tilted_mounts_reach_every_stage(ros_context):
     ex, nodes = _graph(ros_context)
-    _publish(ros_context, ex, [("base_link", "plate", (0.2, 0.0, 0.1), (0.0, 0.0, 0.0)),
-                               ("plate", "laser", (0.1, 0.05, 0.0), (0.0, 0.0, math.pi / 2))])
+    _publish(
+        ros_context,
+        ex,
+        [
+            ("base_link", "plate", (0.2, 0.0, 0.1), (0.0, 0.0, 0.0)),
+            ("plate", "laser", (0.1, 0.05, 0.0), (0.0, 0.0, math.pi / 2)),
+        ],
+    )
     assert spin_until(ex, lambda: nodes["correlator"].mount_ready and nodes["mapper"].mount_ready, 15)
     d = nodes["predictor"].mount.decided
     assert d["source"] == "/tf_static + /tf" and "base_link -> plate -> laser" in d["text"]

@@ -1,4 +1,5 @@
 """Every shipped parameter file builds the graph's nodes; bad parameters fail with their name."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -17,12 +18,19 @@ from pf_slam_nodes.nodes.texture import TextureNode  # noqa: E402
 
 CONFIG = Path(__file__).resolve().parents[2] / "ros2_ws/src/pf_slam_nodes/config"
 SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "sample_indoor"
-CLASSES = {"bag_replay": BagReplay, "predictor": Predictor, "correlator": Correlator, "mapper": Mapper,
-           "texture": TextureNode}
+CLASSES = {
+    "bag_replay": BagReplay,
+    "predictor": Predictor,
+    "correlator": Correlator,
+    "mapper": Mapper,
+    "texture": TextureNode,
+}
 
 
 def test_every_dataset_has_a_parameter_file():
-    assert {"kaist.yaml", "carmen_indoor.yaml", "mines.yaml", "sim_indoor.yaml"} <= {p.name for p in CONFIG.glob("*.yaml")}
+    assert {"kaist.yaml", "carmen_indoor.yaml", "mines.yaml", "sim_indoor.yaml"} <= {
+        p.name for p in CONFIG.glob("*.yaml")
+    }
 
 
 @pytest.mark.parametrize("yaml_file", sorted(CONFIG.glob("*.yaml")), ids=lambda p: p.name)
@@ -36,8 +44,9 @@ def test_shipped_yaml_builds_nodes(yaml_file, ros_context):
         params = node_params(layers, name)
         if name == "bag_replay":
             params["bag"] = str(SAMPLE)
-        node = CLASSES[name](context=ros_context,
-                             parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
+        node = CLASSES[name](
+            context=ros_context, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()]
+        )
         try:
             for k, v in params.items():
                 if node.has_parameter(k):  # '/**' values reach every node; each takes what it declares
@@ -49,8 +58,9 @@ def test_shipped_yaml_builds_nodes(yaml_file, ros_context):
         for k in values:
             nodes = declared_by.get(k, set())
             if section == "/**":
-                assert len(nodes) >= 2, f"{yaml_file.name}: '/**' {k} is used by {sorted(nodes) or 'no node'}: " \
-                                        "put it in that node's block"
+                assert len(nodes) >= 2, (
+                    f"{yaml_file.name}: '/**' {k} is used by {sorted(nodes) or 'no node'}: put it in that node's block"
+                )
             else:
                 assert section in nodes, f"{yaml_file.name}: {section} does not declare {k}"
 
@@ -66,9 +76,15 @@ def test_live_node_warns_about_undeclared_overrides(ros_context):
     """Started by ros2 launch with a --params-file, ROS ignores names the node does not declare;
     the node names those that no node of the graph declares (another node's are fine)."""
     from pf_slam_nodes.nodes.common import warn_undeclared
-    node = Predictor(context=ros_context, parameter_overrides=[
-        Parameter("num_partcles", value=5), Parameter("grid.resolution_m", value=0.1),
-        Parameter("filter.seed", value=1)])
+
+    node = Predictor(
+        context=ros_context,
+        parameter_overrides=[
+            Parameter("num_partcles", value=5),
+            Parameter("grid.resolution_m", value=0.1),
+            Parameter("filter.seed", value=1),
+        ],
+    )
     try:
         assert warn_undeclared(node) == ["num_partcles"]
     finally:

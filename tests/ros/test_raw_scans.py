@@ -1,5 +1,6 @@
 """Scans travel serialized between the nodes: the stamp is read from the CDR bytes, and only
 the scans that are corrected are deserialized."""
+
 import pytest
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import Image, LaserScan

@@ -1,5 +1,6 @@
 """bag_replay at rate max holds the next stereo pair back while the texture node works on one
 (pf_slam/texture_progress), and lets it through for a pair that waits for its pose."""
+
 from __future__ import annotations
 
 import time
@@ -32,8 +33,14 @@ def test_replay_waits_for_texture_progress(ros_context):
     images: list[int] = []
     probe.create_subscription(Image, LEFT, lambda m: images.append(m.header.stamp.sec), qos.pipeline(100))
     progress = probe.create_publisher(UInt32MultiArray, topics.TEXTURE_PROGRESS, qos.latched())
-    replay = BagReplay(context=ctx, parameter_overrides=[
-        Parameter("bag", value=str(CAR)), Parameter("rate", value="max"), Parameter("image_topic", value=LEFT)])
+    replay = BagReplay(
+        context=ctx,
+        parameter_overrides=[
+            Parameter("bag", value=str(CAR)),
+            Parameter("rate", value="max"),
+            Parameter("image_topic", value=LEFT),
+        ],
+    )
     nodes = [*sinks, probe, replay]
     for n in nodes:
         ex.add_node(n)
@@ -44,8 +51,15 @@ def test_replay_waits_for_texture_progress(ros_context):
             ex.spin_once(timeout_sec=0.02)
 
     try:
-        spin_for(60.0, lambda: replay.images_published == 1 and replay.timer.is_canceled()
-                 and replay.pending is not None and replay.pending[0] == LEFT)
+        spin_for(
+            60.0,
+            lambda: (
+                replay.images_published == 1
+                and replay.timer.is_canceled()
+                and replay.pending is not None
+                and replay.pending[0] == LEFT
+            ),
+        )
         spin_for(1.0)  # held: the texture node has not finished the first pair
         assert replay.images_published == 1 and not replay.done and replay.texture_waits >= 1
         scans_held = replay.scans_published

@@ -1,5 +1,6 @@
 """A lidar driver that publishes with the sensor-data QoS (best effort) reaches the predictor only
 with sensor_qos: best_effort; with the default (reliable) nothing matches and the node says so."""
+
 from __future__ import annotations
 
 import pytest
@@ -47,5 +48,6 @@ def test_bad_sensor_qos_value_is_refused(ros_context):
     from rclpy.parameter import Parameter
 
     from pf_slam_nodes.nodes.predictor import Predictor
+
     with pytest.raises(ValueError, match="sensor_qos"):
         Predictor(context=ros_context, parameter_overrides=[Parameter("sensor_qos", value="fast")])

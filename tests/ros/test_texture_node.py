@@ -1,4 +1,5 @@
 """The texture node over real rclpy: the real KAIST stereo pair in, a texture in /map geometry out."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -8,6 +9,7 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 cv2 = pytest.importorskip("cv2")
+from conftest import spin_until  # noqa: E402
 from geometry_msgs.msg import PoseStamped, TransformStamped  # noqa: E402
 from nav_msgs.msg import MapMetaData, OccupancyGrid  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
@@ -16,7 +18,6 @@ from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 from tf2_msgs.msg import TFMessage  # noqa: E402
 
-from conftest import spin_until  # noqa: E402
 from pf_slam_nodes.core.geometry import matrix_to_quat, nearest_rotation  # noqa: E402
 from pf_slam_nodes.io.calib import parse_extrinsic, read_camera_yaml  # noqa: E402
 from pf_slam_nodes.nodes.texture import TextureNode, image_array  # noqa: E402
@@ -85,20 +86,24 @@ class Feeder:
         self.status: list[dict] = []
         n.create_subscription(Image, "texture", self.textures.append, qos.latched())
         import json
-        n.create_subscription(String, "pf_slam/texture_status",
-                              lambda m: self.status.append(json.loads(m.data)), qos.latched())
+
+        n.create_subscription(
+            String, "pf_slam/texture_status", lambda m: self.status.append(json.loads(m.data)), qos.latched()
+        )
 
     def matched(self) -> bool:  # the node listens to map or map_metadata, not both
-        return all(p.get_subscription_count() > 0 for k, p in self.pub.items()
-                   if k not in ("map", "map_metadata")) and \
-            self.pub["map"].get_subscription_count() + self.pub["map_metadata"].get_subscription_count() > 0
+        return (
+            all(p.get_subscription_count() > 0 for k, p in self.pub.items() if k not in ("map", "map_metadata"))
+            and self.pub["map"].get_subscription_count() + self.pub["map_metadata"].get_subscription_count() > 0
+        )
 
     def publish_static(self, quat=None) -> None:
         tr = TransformStamped()
         tr.header.stamp = convert.ns_to_stamp(T0)
         tr.header.frame_id, tr.child_frame_id = "base_link", "stereo_left"
         tr.transform.translation.x, tr.transform.translation.y, tr.transform.translation.z = (
-            float(v) for v in self.mount[1])
+            float(v) for v in self.mount[1]
+        )
         q = matrix_to_quat(self.mount[0]) if quat is None else quat
         r = tr.transform.rotation
         r.x, r.y, r.z, r.w = q
@@ -151,8 +156,7 @@ def test_texture_in_map_geometry(ros_context, kaist):
         for k, s in enumerate(stamps):  # one at a time: a loaded machine must not skip one
             feed.publish_pair(s)
             assert spin_until(ex, lambda: node.frames_processed == k + 1, 30), node.counters()
-        assert spin_until(ex, lambda: any(m.header.stamp == convert.ns_to_stamp(stamps[-1])
-                                          for m in feed.textures), 10)
+        assert spin_until(ex, lambda: any(m.header.stamp == convert.ns_to_stamp(stamps[-1]) for m in feed.textures), 10)
         msg = [m for m in feed.textures if m.header.stamp == convert.ns_to_stamp(stamps[-1])][-1]
         assert (msg.width, msg.height, msg.encoding, msg.header.frame_id) == (MAP_W, MAP_H, "rgb8", "map")
         rgb = image_array(msg)
@@ -190,8 +194,9 @@ def test_flooded_pairs_are_skipped_not_queued(ros_context, kaist):
         assert spin_until(ex, lambda: node.rig is not None and len(node._pose_t) > 150, 10)
         for k in range(n):  # 10 pairs at once: 100 fps, far above what one core processes
             feed.publish_pair(T0 + 100_000_000 * (k + 1))
-        done = lambda: (node.frames_received == n and node.frames_processed + node.frames_skipped
-                        + node.frames_dropped == n)  # noqa: E731
+        done = lambda: (
+            node.frames_received == n and node.frames_processed + node.frames_skipped + node.frames_dropped == n
+        )  # noqa: E731
         assert spin_until(ex, done, 20), node.counters()
         c = node.counters()
         assert c["frames_skipped"] >= 1 and c["frames_processed"] >= 1 and c["frames_dropped"] == 0

@@ -1,4 +1,5 @@
 """The toolchain is real: our messages travel through real rclpy publishers/subscribers over DDS."""
+
 from __future__ import annotations
 
 import os
@@ -10,11 +11,11 @@ import numpy as np
 import pytest
 
 rclpy = pytest.importorskip("rclpy")
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from nav_msgs.msg import OccupancyGrid  # noqa: E402
-from pf_slam_interfaces.msg import ParticleArray  # noqa: E402
-
 from conftest import spin_until  # noqa: E402
+from nav_msgs.msg import OccupancyGrid  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+
+from pf_slam_interfaces.msg import ParticleArray  # noqa: E402
 from pf_slam_nodes.ros import convert, qos  # noqa: E402
 
 
@@ -48,8 +49,11 @@ def test_particles_and_grid_between_two_nodes_in_one_executor(ros_context):
     poses, lw = _particles(1000)
     occ = _grid()
     for k in range(5):
-        pp.publish(convert.particles_to_msg(poses + k, lw, stamp_ns=1_000 + k, frame_id="map",
-                                            scan_index=k, update=True, odom_pose=np.zeros(3)))
+        pp.publish(
+            convert.particles_to_msg(
+                poses + k, lw, stamp_ns=1_000 + k, frame_id="map", scan_index=k, update=True, odom_pose=np.zeros(3)
+            )
+        )
     pg.publish(convert.grid_to_msg(occ, 0.05, (-8.0, -6.0), 42, "map"))
     assert spin_until(ex, lambda: len(got_p) == 5 and len(got_g) == 1, 10)
 
@@ -104,8 +108,9 @@ def test_particles_and_grid_between_two_processes(ros_context, ros_domain):
     node.create_subscription(ParticleArray, "particles", got_p.append, qos.pipeline())
     node.create_subscription(OccupancyGrid, "grid", got_g.append, qos.latched())
     env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain))
-    proc = subprocess.Popen([sys.executable, "-c", PUBLISHER], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", PUBLISHER], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
     try:
         ok = spin_until(ex, lambda: len(got_p) == 3 and len(got_g) == 1, 30)
     finally:

@@ -1,4 +1,5 @@
 """`pf-slam run` inspects a bag in one pass that stops as soon as it has what it needs."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -27,15 +28,33 @@ def counted(monkeypatch):
         for m in real(bag, topics=topics):
             passes[-1] += 1
             yield m
+
     monkeypatch.setattr(sample_mod, "read_bag", counting)
     return passes
 
 
 @pytest.mark.parametrize("bag", [SAMPLE, CAR], ids=["indoor", "car"])
 def test_planning_a_run_reads_the_bag_once_and_stops_early(bag, counted):
-    plan = graph._plan(str(bag), None, "max", "single", None, False, False, None, None,
-                       dict(executor="events", record_map_every_s=None, snapshot_every=0, progress=False,
-                            idle_timeout_s=60.0, drain_timeout_s=5.0, texture_timeout_s=120.0))
+    plan = graph._plan(
+        str(bag),
+        None,
+        "max",
+        "single",
+        None,
+        False,
+        False,
+        None,
+        None,
+        dict(
+            executor="events",
+            record_map_every_s=None,
+            snapshot_every=0,
+            progress=False,
+            idle_timeout_s=60.0,
+            drain_timeout_s=5.0,
+            texture_timeout_s=120.0,
+        ),
+    )
     assert plan.per_node["predictor"]["odometry_source"] in ("odom", "encoders")
     assert len(counted) == 1, counted  # mount, stamps, pairing and profile from one pass
     info = bag_info(bag)

@@ -1,9 +1,10 @@
 """The car bench's table, targets line, cached bags and ground-truth FOG bias (no graph run)."""
+
 import numpy as np
 
-from pf_slam_tools.bench import car
 from pf_slam_nodes.io.bag import bag_info
 from pf_slam_nodes.io.kaist import convert_kaist
+from pf_slam_tools.bench import car
 from pf_slam_tools.sim.car import simulate_car
 
 
@@ -13,22 +14,50 @@ def test_true_fog_bias_per_second_and_table(tmp_path):
     t = 1_700_000_000_000_000_000 + np.arange(100, dtype=np.int64) * 1_000_000  # 1 kHz
     assert abs(car._true_fog_bias_rad_s(tmp_path, t) - 2.0e-4) < 1e-12
     assert car._true_fog_bias_rad_s(tmp_path / "nowhere", t) is None
-    row = dict(seed=3, filter_seed=1, duration_s=300.0, particles=100, processes="single", ate_m=0.25, dr_ate_m=2.5,
-               dr_rest_bias_ate_m=0.3, gyro_bias_rad_s=1.9e-4, true_gyro_bias_rad_s=2.0e-4, map_f1=0.5,
-               map_precision=0.7, map_recall=0.4, wall_s=30.0, rtf=10.0, ceiling_rtf=60.0,
-               ratio_to_ceiling=0.167, dropped=0)
+    row = dict(
+        seed=3,
+        filter_seed=1,
+        duration_s=300.0,
+        particles=100,
+        processes="single",
+        ate_m=0.25,
+        dr_ate_m=2.5,
+        dr_rest_bias_ate_m=0.3,
+        gyro_bias_rad_s=1.9e-4,
+        true_gyro_bias_rad_s=2.0e-4,
+        map_f1=0.5,
+        map_precision=0.7,
+        map_recall=0.4,
+        wall_s=30.0,
+        rtf=10.0,
+        ceiling_rtf=60.0,
+        ratio_to_ceiling=0.167,
+        dropped=0,
+    )
     line = car.format_table([row]).splitlines()[2]
     assert line.startswith("| 3 | – | 1 | 300 |")
     assert "| 0.250 | 2.500 | 10.0× | 0.300 | 190 / 200 |" in line
     worse = dict(row, ate_m=0.9, rtf=8.0, dropped=2)
     assert car.targets_line([row, worse]) == (
         "2 runs: ATE mean 0.575 m, median 0.575 m, worst 0.900 m; ATE <= 0.35 m and >= 3x below raw dead "
-        "reckoning in 1 of 2; >= 10x real time in 1 of 2 (RTF 8.0-10.0x); dropped 2")
-    tex = dict(row, world=2, images=True, pairs=300, pairs_textured=300, pairs_skipped=0, colour_error=10.5,
-               coverage=0.8, texture_ms_per_pair=120.0, texture_ms_stages={"disparity": 40.0, "ground": 30.0})
+        "reckoning in 1 of 2; >= 10x real time in 1 of 2 (RTF 8.0-10.0x); dropped 2"
+    )
+    tex = dict(
+        row,
+        world=2,
+        images=True,
+        pairs=300,
+        pairs_textured=300,
+        pairs_skipped=0,
+        colour_error=10.5,
+        coverage=0.8,
+        texture_ms_per_pair=120.0,
+        texture_ms_stages={"disparity": 40.0, "ground": 30.0},
+    )
     assert car.targets_line([tex, dict(tex, colour_error=13.0)]).endswith(
         "; stereo pairs textured 600 of 600 (0 skipped); texture colour error median 11.8, worst 13.0 "
-        "(<= 12 in 1 of 2), coverage median 0.80")
+        "(<= 12 in 1 of 2), coverage median 0.80"
+    )
     t = car.format_texture_table([tex]).splitlines()
     assert t[0].endswith("| ms / pair | disparity ms | ground ms |")
     assert t[2] == "| 3 | 2 | 1 | 300 | 300 | 0 | 10.5 | 0.80 | 120 | 40 | 30 |"
@@ -76,9 +105,9 @@ def test_texture_score_of_a_perfect_and_a_shifted_texture(tmp_path):
         h, w = occ.shape
         out = np.zeros((h, w, 3), np.uint8)
         oi, oj = int(round((origin[0] - gorig[0]) / gres)), int(round((origin[1] - gorig[1]) / gres))
-        blk = gt[oj:oj + h * k, oi + shift_cells:oi + shift_cells + w * k].astype(np.float64)
+        blk = gt[oj : oj + h * k, oi + shift_cells : oi + shift_cells + w * k].astype(np.float64)
         hh, ww = blk.shape[0] // k, blk.shape[1] // k
-        out[:hh, :ww] = np.rint(blk[:hh * k, :ww * k].reshape(hh, k, ww, k, 3).mean(axis=(1, 3)))
+        out[:hh, :ww] = np.rint(blk[: hh * k, : ww * k].reshape(hh, k, ww, k, 3).mean(axis=(1, 3)))
         return np.maximum(out, 1)
 
     cv2.imwrite(str(run_dir / "texture.png"), north_up_bgr(cells(0)))

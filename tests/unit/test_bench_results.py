@@ -1,4 +1,5 @@
 """docs/results.md sections: a bench rewrites its own section and leaves the rest as it was."""
+
 from __future__ import annotations
 
 from pf_slam_tools.bench import results
@@ -6,17 +7,38 @@ from pf_slam_tools.bench import results
 
 def test_a_bench_replaces_its_section_and_keeps_the_others(tmp_path):
     p = tmp_path / "results.md"
-    a1 = results.section("carmen_single", "CARMEN", "| a |\n|---|\n| 1 |", command="pf-slam bench carmen",
-                         when="2026-01-01 00:00 UTC", where="cpu, 2 cores", rev="abc")
-    b1 = results.section("car_single", "Car", "| b |\n|---|\n| 2 |", command="pf-slam bench car",
-                         when="2026-01-01 00:00 UTC", where="cpu, 2 cores", rev="abc")
+    a1 = results.section(
+        "carmen_single",
+        "CARMEN",
+        "| a |\n|---|\n| 1 |",
+        command="pf-slam bench carmen",
+        when="2026-01-01 00:00 UTC",
+        where="cpu, 2 cores",
+        rev="abc",
+    )
+    b1 = results.section(
+        "car_single",
+        "Car",
+        "| b |\n|---|\n| 2 |",
+        command="pf-slam bench car",
+        when="2026-01-01 00:00 UTC",
+        where="cpu, 2 cores",
+        rev="abc",
+    )
     results.update(p, "carmen_single", a1)
     results.update(p, "car_single", b1)
     doc = p.read_text()
     assert doc.startswith("# Results") and doc.index("| 1 |") < doc.index("| 2 |")
     assert "`pf-slam bench carmen` on commit abc, 2026-01-01 00:00 UTC; machine: cpu, 2 cores." in doc
-    a2 = results.section("carmen_single", "CARMEN", "| a |\n|---|\n| 3 |", command="pf-slam bench carmen",
-                         when="2026-01-02 00:00 UTC", where="cpu, 2 cores", rev="def")
+    a2 = results.section(
+        "carmen_single",
+        "CARMEN",
+        "| a |\n|---|\n| 3 |",
+        command="pf-slam bench carmen",
+        when="2026-01-02 00:00 UTC",
+        where="cpu, 2 cores",
+        rev="def",
+    )
     results.update(p, "carmen_single", a2)
     doc2 = p.read_text()
     assert "| 1 |" not in doc2 and "| 3 |" in doc2 and "commit def" in doc2

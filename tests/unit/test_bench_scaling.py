@@ -1,11 +1,12 @@
 """The scaling bench's pieces that need no graph run: the table, the plot, the stage clocks."""
+
 import time
 
 import cv2
 import numpy as np
 
-from pf_slam_tools.bench import scaling
 from pf_slam_nodes.core.stages import STAGE_STEPS, StageClock, stage_seconds
+from pf_slam_tools.bench import scaling
 
 
 class _Stage:
@@ -27,9 +28,19 @@ def test_stage_clocks_merge_per_step() -> None:
 
 
 def _row(sweep, n, cells, wall):
-    return {"sweep": sweep, "dataset": "intel_910", "particles": n, "grid_cells": cells, "wall_s": wall,
-            "rtf": 1800.0 / wall, "peak_rss_mb": 300.0 + n, "scans": 910, "dropped": 0,
-            "rel_trans_mean": 0.03, "stage_ms_per_scan": {"correlate": 5.0, "messaging": 2.0}}
+    return {
+        "sweep": sweep,
+        "dataset": "intel_910",
+        "particles": n,
+        "grid_cells": cells,
+        "wall_s": wall,
+        "rtf": 1800.0 / wall,
+        "peak_rss_mb": 300.0 + n,
+        "scans": 910,
+        "dropped": 0,
+        "rel_trans_mean": 0.03,
+        "stage_ms_per_scan": {"correlate": 5.0, "messaging": 2.0},
+    }
 
 
 def test_table_and_plots(tmp_path) -> None:

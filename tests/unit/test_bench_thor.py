@@ -1,5 +1,6 @@
 """`pf-slam bench thor`'s evaluation parts on small files: the texture colour error's geometry
 (texture in /map's grid vs the simulator's floor colour in its own grid), the table, the targets."""
+
 from __future__ import annotations
 
 import cv2
@@ -15,10 +16,11 @@ def _floor(d, colour, res=0.05, origin=(-1.0, -2.0), shape=(80, 60)):
     """floor_colour.png + .yaml (north up) of a left half ``colour[0]`` and right half ``colour[1]``."""
     rgb = np.zeros(shape + (3,), np.uint8)
     rgb[:, : shape[1] // 2] = colour[0]
-    rgb[:, shape[1] // 2:] = colour[1]
+    rgb[:, shape[1] // 2 :] = colour[1]
     cv2.imwrite(str(d / "floor_colour.png"), np.ascontiguousarray(rgb[::-1, :, ::-1]))
-    (d / "floor_colour.yaml").write_text(f"image: floor_colour.png\nresolution: {res}\n"
-                                         f"origin: [{origin[0]}, {origin[1]}, 0]\n")
+    (d / "floor_colour.yaml").write_text(
+        f"image: floor_colour.png\nresolution: {res}\norigin: [{origin[0]}, {origin[1]}, 0]\n"
+    )
     return origin[0] + shape[1] // 2 * res  # x of the colour change
 
 
@@ -48,10 +50,27 @@ def test_texture_error_in_the_maps_geometry(tmp_path):
 
 
 def test_table_and_targets():
-    row = {"seed": 0, "filter_seed": 1, "duration_s": 60.0, "particles": 100, "scans": 2400, "corrected": 120,
-           "mostly_floor": 3, "ate_m": 0.05, "odom_ate_m": 0.4, "map_f1": 0.9, "map_precision": 0.95,
-           "map_recall": 0.85, "texture_error": 9.5, "texture_cells": 4000, "rgbd_pairs": 30, "rgbd_received": 30,
-           "plane_fits": 29, "wall_s": 5.0, "rtf": 12.0}
+    row = {
+        "seed": 0,
+        "filter_seed": 1,
+        "duration_s": 60.0,
+        "particles": 100,
+        "scans": 2400,
+        "corrected": 120,
+        "mostly_floor": 3,
+        "ate_m": 0.05,
+        "odom_ate_m": 0.4,
+        "map_f1": 0.9,
+        "map_precision": 0.95,
+        "map_recall": 0.85,
+        "texture_error": 9.5,
+        "texture_cells": 4000,
+        "rgbd_pairs": 30,
+        "rgbd_received": 30,
+        "plane_fits": 29,
+        "wall_s": 5.0,
+        "rtf": 12.0,
+    }
     bad = dict(row, seed=1, ate_m=0.2, texture_error=20.0, rtf=4.0)
     table = thor.format_table([row, bad])
     assert "| 0 | 1 | 60 | 100 | 2400 (120, 3) | 0.050 | 0.400 | 0.900 (0.95 / 0.85) | 9.5 |" in table

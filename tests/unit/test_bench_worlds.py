@@ -1,5 +1,6 @@
 """The worlds bench's parts (no filter run): synthesised odometry, relations from the truth,
 the repetitive-corridors and ring drives, the scores, the loop-closure back end's optimiser."""
+
 import math
 
 import numpy as np
@@ -22,16 +23,16 @@ def test_synthesised_odometry_is_seeded_and_has_the_documented_errors():
     assert np.array_equal(a[0], truth[0])
     steps = np.hypot(*np.diff(a[:, :2], axis=0).T)
     scale = abs(steps.mean() - 1.0)
-    assert 0.005 < scale < 0.035                          # 1-3 % scale error (+ noise)
-    turn = abs(math.degrees(a[-1, 2])) / 100.0            # heading bias 0.3-1 deg/m (+ noise)
+    assert 0.005 < scale < 0.035  # 1-3 % scale error (+ noise)
+    turn = abs(math.degrees(a[-1, 2])) / 100.0  # heading bias 0.3-1 deg/m (+ noise)
     assert 0.1 < turn < 1.5
-    assert np.hypot(*(a[-1, :2] - truth[-1, :2])) > 0.5   # it drifts
+    assert np.hypot(*(a[-1, :2] - truth[-1, :2])) > 0.5  # it drifts
 
 
 def test_relations_include_the_revisits_of_a_loop():
     t = np.linspace(0, 2 * math.pi, 800, endpoint=False)
     truth = np.stack([20 * np.cos(t), 20 * np.sin(t), t + math.pi / 2], axis=1)
-    truth = np.concatenate([truth, truth[:200]])          # drives on past the start
+    truth = np.concatenate([truth, truth[:200]])  # drives on past the start
     pairs = worlds.relations_from_truth(truth)
     revisits = pairs[pairs[:, 1] - pairs[:, 0] >= 300]
     assert len(revisits) >= 15
@@ -52,7 +53,7 @@ def test_simulated_drives_close_their_loop_and_keep_off_the_walls():
         else:
             assert length > 250
         # the drive passes its start again (a loop to close)
-        late = truth[len(truth) // 2:, :2]
+        late = truth[len(truth) // 2 :, :2]
         assert np.hypot(late[:, 0], late[:, 1]).min() < 1.0
 
 
@@ -69,9 +70,9 @@ def test_backend_optimiser_pulls_a_drifted_loop_closed():
         est.append(compose(est[-1], z))
     est = np.array(est)
     cfg = backend.LoopConfig()
-    info = np.diag([1 / 0.03 ** 2] * 2 + [1 / 0.01 ** 2])
+    info = np.diag([1 / 0.03**2] * 2 + [1 / 0.01**2])
     edges = [(k, k + 1, meas[k], info, False) for k in range(160)]
-    edges.append((0, 160, relative_pose(true[0], true[160]), np.diag([1 / 0.05 ** 2] * 2 + [1 / 0.01 ** 2]), False))
+    edges.append((0, 160, relative_pose(true[0], true[160]), np.diag([1 / 0.05**2] * 2 + [1 / 0.01**2]), False))
     opt = backend.optimise(est, edges, cfg)
     before = np.hypot(*(est[160, :2] - true[160, :2]))
     after = np.hypot(*(opt[160, :2] - true[160, :2]))

@@ -1,4 +1,5 @@
 """The car's inputs in the core: gyro increments summed per encoder step; the tilted lidar."""
+
 import math
 
 import numpy as np
@@ -9,8 +10,20 @@ from pf_slam_nodes.core.odometry import GyroBuffer
 from pf_slam_nodes.core.scan import planar_scan
 
 # the real Vehicle2Lidar.txt of the KAIST car (R row-major, T)
-KAIST_LIDAR = (0.00130201, 0.796097, 0.605167, 0.999999, -0.000419027, -0.00160026,
-               -0.00102038, 0.605169, -0.796097, 0.8349, -0.0126869, 1.76416)
+KAIST_LIDAR = (
+    0.00130201,
+    0.796097,
+    0.605167,
+    0.999999,
+    -0.000419027,
+    -0.00160026,
+    -0.00102038,
+    0.605169,
+    -0.796097,
+    0.8349,
+    -0.0126869,
+    1.76416,
+)
 
 
 def test_gyro_sums_increments_in_half_open_intervals():
@@ -35,7 +48,7 @@ def test_gyro_sums_do_not_depend_on_the_batching():
     for batch in (1, 10, 37, 1000):
         g, got = GyroBuffer(), []
         for i in range(0, len(stamps), batch):
-            g.add(stamps[i:i + batch], dyaw[i:i + batch])
+            g.add(stamps[i : i + batch], dyaw[i : i + batch])
             while len(got) + 1 < len(steps) and steps[len(got) + 1] <= g.last_stamp:
                 t0, t1 = steps[len(got)], steps[len(got) + 1]
                 got.append(g.yaw_between(t0, t1))

@@ -1,8 +1,10 @@
 """Correlation options for the car: motion prior of the match and skipping unobserved cells."""
+
 import math
 
 import numpy as np
 import pytest
+from test_core_correlation_slam import raycast, world
 
 from pf_slam_nodes.core.config import CorrelationConfig, FilterConfig, GridConfig, ResampleConfig
 from pf_slam_nodes.core.correlation import build_likelihood_field_from_map, correlate
@@ -10,8 +12,6 @@ from pf_slam_nodes.core.grid import LogOddsGrid
 from pf_slam_nodes.core.motion import compose
 from pf_slam_nodes.core.scan import beam_angles, scan_to_points
 from pf_slam_nodes.core.stages import CorrectionStage, MappingStage
-
-from test_core_correlation_slam import raycast, world
 
 
 def test_defaults_off_and_validation():
@@ -41,14 +41,20 @@ def _offset_start():
     true_pose, pts, grid = _scene()
     start = compose(true_pose, np.array([0.1, -0.05, 0.02]))[None]
     base = dict(search_x_m=0.2, search_y_m=0.2, search_yaw_rad=0.1)
-    return true_pose, pts, start, base, build_likelihood_field_from_map(grid.to_occupancy_map(),
-                                                                        CorrelationConfig(**base))
+    return (
+        true_pose,
+        pts,
+        start,
+        base,
+        build_likelihood_field_from_map(grid.to_occupancy_map(), CorrelationConfig(**base)),
+    )
 
 
 def _score_in_place(poses, pts, field):
     """The score of particles left where they are (no window, no refinement, no prior)."""
-    return correlate(poses, pts, field, CorrelationConfig(search_x_m=0, search_y_m=0, search_yaw_rad=0,
-                                                          refine_iterations=0))[1]
+    return correlate(
+        poses, pts, field, CorrelationConfig(search_x_m=0, search_y_m=0, search_yaw_rad=0, refine_iterations=0)
+    )[1]
 
 
 def test_motion_prior_keeps_weak_shifts_and_never_scores_below_staying():

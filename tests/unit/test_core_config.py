@@ -1,4 +1,5 @@
 """Config validation of pf_slam_nodes.core.config."""
+
 import math
 
 import pytest
@@ -39,8 +40,14 @@ def test_from_dict_rejects_unknown_keys():
 
 
 def test_from_dict_roundtrip_and_frozen():
-    for cls in (C.OdometryMotionConfig, C.DiffDriveConfig, C.GridConfig, C.CorrelationConfig,
-                C.ResampleConfig, C.FilterConfig):
+    for cls in (
+        C.OdometryMotionConfig,
+        C.DiffDriveConfig,
+        C.GridConfig,
+        C.CorrelationConfig,
+        C.ResampleConfig,
+        C.FilterConfig,
+    ):
         cfg = cls()
         assert cls.from_dict(cfg.to_dict()) == cfg
     cfg = C.FilterConfig.from_dict({"num_particles": 7})

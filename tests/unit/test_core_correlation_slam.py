@@ -1,13 +1,17 @@
 """Likelihood field, scan-to-map correlation and the reference SLAM loop (synthetic worlds)."""
+
 import math
 
 import numpy as np
 import pytest
 
-from pf_slam_nodes.core.config import (CorrelationConfig, FilterConfig, GridConfig, OdometryMotionConfig,
-                                       ResampleConfig)
-from pf_slam_nodes.core.correlation import (GridLikelihoodField, build_likelihood_field, build_likelihood_field_from_map,
-                                            correlate)
+from pf_slam_nodes.core.config import CorrelationConfig, FilterConfig, GridConfig, OdometryMotionConfig, ResampleConfig
+from pf_slam_nodes.core.correlation import (
+    GridLikelihoodField,
+    build_likelihood_field,
+    build_likelihood_field_from_map,
+    correlate,
+)
 from pf_slam_nodes.core.grid import LogOddsGrid, from_occupancy
 from pf_slam_nodes.core.motion import compose, relative_pose
 from pf_slam_nodes.core.scan import beam_angles, scan_to_points
@@ -90,8 +94,12 @@ def test_correlation_recovers_known_offset(offset):
     err = relative_pose(true_pose, best[np.argmax(scores)])
     assert math.hypot(err[0], err[1]) < 0.02 and abs(err[2]) < 0.005
     # a particle far off scores worse than the true pose
-    far, far_score = correlate(compose(true_pose, np.array([1.0, 1.0, 1.0]))[None], pts, field,
-                               CorrelationConfig(search_x_m=0, search_y_m=0, search_yaw_rad=0, refine_iterations=0))
+    far, far_score = correlate(
+        compose(true_pose, np.array([1.0, 1.0, 1.0]))[None],
+        pts,
+        field,
+        CorrelationConfig(search_x_m=0, search_y_m=0, search_yaw_rad=0, refine_iterations=0),
+    )
     assert far_score[0] < scores.max()
 
 
@@ -114,13 +122,19 @@ def _simulate(n_steps=40):
 
 def test_slam_loop_beats_odometry_and_is_deterministic():
     true, odom, scans, ang = _simulate()
-    cfgs = (FilterConfig(num_particles=20, seed=3), OdometryMotionConfig(),
-            GridConfig(size_x_m=30.0, size_y_m=30.0), CorrelationConfig(), ResampleConfig())
+    cfgs = (
+        FilterConfig(num_particles=20, seed=3),
+        OdometryMotionConfig(),
+        GridConfig(size_x_m=30.0, size_y_m=30.0),
+        CorrelationConfig(),
+        ResampleConfig(),
+    )
     runs = []
     for _ in range(2):
         slam = ParticleFilterSlam(*cfgs)
-        est = np.array([slam.process_odometry_scan(0.1 * k, odom[k], scans[k], ang, 0.1, 19.5)
-                        for k in range(len(true))])
+        est = np.array(
+            [slam.process_odometry_scan(0.1 * k, odom[k], scans[k], ang, 0.1, 19.5) for k in range(len(true))]
+        )
         runs.append(est)
     np.testing.assert_array_equal(runs[0], runs[1])
     est = runs[0]
@@ -135,9 +149,13 @@ def test_slam_loop_beats_odometry_and_is_deterministic():
 
 def test_slam_skipped_scans_get_odometry_pose():
     true, odom, scans, ang = _simulate(3)
-    slam = ParticleFilterSlam(FilterConfig(num_particles=5, min_travel_m=10.0, min_rotation_rad=10.0),
-                              OdometryMotionConfig(), GridConfig(size_x_m=30.0, size_y_m=30.0),
-                              CorrelationConfig(), ResampleConfig())
+    slam = ParticleFilterSlam(
+        FilterConfig(num_particles=5, min_travel_m=10.0, min_rotation_rad=10.0),
+        OdometryMotionConfig(),
+        GridConfig(size_x_m=30.0, size_y_m=30.0),
+        CorrelationConfig(),
+        ResampleConfig(),
+    )
     p0 = slam.process_odometry_scan(0.0, odom[0], scans[0], ang)
     p2 = slam.process_odometry_scan(0.2, odom[2], scans[2], ang)
     np.testing.assert_allclose(p0, odom[0])
@@ -148,14 +166,19 @@ def test_slam_skipped_scans_get_odometry_pose():
 @pytest.mark.parametrize("residual", ["likelihood", "distance"])
 def test_refine_converges_and_never_increases_cost(residual):
     from pf_slam_nodes.core.correlation import _cost, refine
+
     occ = world()
     true_pose = np.array([6.1, 5.2, 0.4])
     ang = beam_angles(-math.pi / 2, math.pi / 180, 181)
     pts = scan_to_points(raycast(occ, true_pose, ang), ang, 0.1, 19.0)
     cfg = CorrelationConfig()
     field = build_likelihood_field(occ, RES, cfg.sigma_m, cfg.occupied_threshold, (0.0, 0.0), cfg.max_distance_m)
-    starts = np.array([compose(true_pose, np.array(o)) for o in
-                       [(0.03, -0.02, 0.01), (-0.04, 0.03, -0.02), (0.0, 0.0, 0.0), (0.02, 0.02, 0.03)]])
+    starts = np.array(
+        [
+            compose(true_pose, np.array(o))
+            for o in [(0.03, -0.02, 0.01), (-0.04, 0.03, -0.02), (0.0, 0.0, 0.0), (0.02, 0.02, 0.03)]
+        ]
+    )
     d0 = _cost(starts, pts, field, residual)[0]
     best, cost = refine(starts, pts, field, 30, residual)
     assert np.all(cost <= (d0 * d0).sum(axis=1) + 1e-12)
@@ -173,6 +196,7 @@ def test_refine_converges_and_never_increases_cost(residual):
 def test_remap_and_numpy_paths_agree(monkeypatch):
     """OpenCV remap (fields < 32000 cells a side) and the numpy fallback find the same poses."""
     import pf_slam_nodes.core.correlation as corr
+
     occ = world()
     true_pose = np.array([6.1, 5.2, 0.4])
     ang = beam_angles(-math.pi / 2, math.pi / 180, 181)
@@ -202,6 +226,7 @@ def test_window_search_any_particle_count_chunks_the_remap():
     rows crashed it. Chunked over particles: 20 000 particles work, and every particle's result
     is the one it gets alone or in a small set (bit for bit), as for the counts that fit one call."""
     import pf_slam_nodes.core.correlation as corr
+
     occ = world()
     true_pose = np.array([6.1, 5.2, 0.4])
     ang = beam_angles(-math.pi / 2, math.pi / 180, 181)
@@ -216,16 +241,19 @@ def test_window_search_any_particle_count_chunks_the_remap():
     best, score = corr.window_search(starts, pts, field, cfg)
     assert best.shape == (20000, 3) and np.isfinite(score).all()
     for i0 in (0, 3555, 19900):  # pieces of 100 particles: one remap call each, as before
-        b, s = corr.window_search(starts[i0:i0 + 100], pts, field, cfg)
-        np.testing.assert_array_equal(best[i0:i0 + 100], b)
-        np.testing.assert_array_equal(score[i0:i0 + 100], s)
+        b, s = corr.window_search(starts[i0 : i0 + 100], pts, field, cfg)
+        np.testing.assert_array_equal(best[i0 : i0 + 100], b)
+        np.testing.assert_array_equal(score[i0 : i0 + 100], s)
     # the search moves the particles towards the true pose
-    assert np.median(np.hypot(*(best[:, :2] - true_pose[:2]).T)) < np.median(np.hypot(*(starts[:, :2] - true_pose[:2]).T))
+    assert np.median(np.hypot(*(best[:, :2] - true_pose[:2]).T)) < np.median(
+        np.hypot(*(starts[:, :2] - true_pose[:2]).T)
+    )
     # more points than remap's columns: the numpy path (no crash)
     many = np.repeat(pts, 33000 // pts.shape[0] + 1, axis=0)
     b, s = corr.window_search(starts[:2], many, field, cfg)
-    np.testing.assert_allclose(s, corr.window_search(starts[:2], pts, field, cfg)[1] * many.shape[0] / pts.shape[0],
-                               rtol=0.02)
+    np.testing.assert_allclose(
+        s, corr.window_search(starts[:2], pts, field, cfg)[1] * many.shape[0] / pts.shape[0], rtol=0.02
+    )
 
 
 def test_field_block_update_is_exact_across_tiles():

@@ -1,9 +1,15 @@
 """Weights, N_eff and resampling."""
+
 import numpy as np
 import pytest
 
-from pf_slam_nodes.core.filter import (n_eff, normalize_log_weights, stratified_resample, systematic_resample,
-                                       update_log_weights)
+from pf_slam_nodes.core.filter import (
+    n_eff,
+    normalize_log_weights,
+    stratified_resample,
+    systematic_resample,
+    update_log_weights,
+)
 
 
 def _lse(x):
@@ -11,8 +17,15 @@ def _lse(x):
     return m + np.log(np.exp(x - m).sum())
 
 
-@pytest.mark.parametrize("lw", [np.array([1e308, -1e308, 0.0]), np.array([-1e6, -1e6 - 1, -2e6]),
-                                np.array([0.0, -np.inf, -np.inf]), np.array([5.0])])
+@pytest.mark.parametrize(
+    "lw",
+    [
+        np.array([1e308, -1e308, 0.0]),
+        np.array([-1e6, -1e6 - 1, -2e6]),
+        np.array([0.0, -np.inf, -np.inf]),
+        np.array([5.0]),
+    ],
+)
 def test_normalize_finite_and_normalised(lw):
     out = normalize_log_weights(lw)
     assert abs(_lse(out)) < 1e-9

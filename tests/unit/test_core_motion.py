@@ -1,11 +1,18 @@
 """Motion models and pose algebra."""
+
 import math
 
 import numpy as np
 
 from pf_slam_nodes.core.config import DiffDriveConfig, OdometryMotionConfig
-from pf_slam_nodes.core.motion import (compose, integrate_diff_drive, relative_pose, sample_diff_drive,
-                                       sample_odometry_motion, wheel_odometry)
+from pf_slam_nodes.core.motion import (
+    compose,
+    integrate_diff_drive,
+    relative_pose,
+    sample_diff_drive,
+    sample_odometry_motion,
+    wheel_odometry,
+)
 
 ZERO_ODOM = OdometryMotionConfig(**{k: 0.0 for k in OdometryMotionConfig().to_dict()})
 ZERO_DD = DiffDriveConfig(**{k: 0.0 for k in DiffDriveConfig().to_dict()})
@@ -36,8 +43,14 @@ def test_zero_noise_odometry_equals_compose_exactly():
 
 def test_odometry_noise_statistics():
     rng = np.random.default_rng(2)
-    cfg = OdometryMotionConfig(sigma_xy_per_m=0.1, sigma_xy_per_rad=0.0, sigma_theta_per_m=0.0,
-                               sigma_theta_per_rad=0.0, sigma_xy_min_m=0.0, sigma_theta_min_rad=0.01)
+    cfg = OdometryMotionConfig(
+        sigma_xy_per_m=0.1,
+        sigma_xy_per_rad=0.0,
+        sigma_theta_per_m=0.0,
+        sigma_theta_per_rad=0.0,
+        sigma_xy_min_m=0.0,
+        sigma_theta_min_rad=0.01,
+    )
     out = sample_odometry_motion(np.zeros((20000, 3)), np.array([1.0, 0.0, 0.0]), cfg, rng)
     np.testing.assert_allclose(out.mean(axis=0), [1.0, 0.0, 0.0], atol=0.005)
     np.testing.assert_allclose(out.std(axis=0), [0.1, 0.1, 0.01], rtol=0.05)

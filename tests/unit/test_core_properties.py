@@ -4,6 +4,7 @@ Weights stay normalised and finite whatever the correlation scores (``-inf``, ``
 1e308); resampling only returns indices in ``[0, N)``; the grid's log-odds never leave
 ``[clip_min, clip_max]``; ray tracing never writes outside the grid.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -16,13 +17,19 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from pf_slam_nodes.core.config import GridConfig
-from pf_slam_nodes.core.filter import (n_eff, normalize_log_weights, stratified_resample,
-                                       systematic_resample, update_log_weights)
+from pf_slam_nodes.core.filter import (
+    n_eff,
+    normalize_log_weights,
+    stratified_resample,
+    systematic_resample,
+    update_log_weights,
+)
 from pf_slam_nodes.core.grid import LogOddsGrid
 
 # derandomize: the same examples on every run (the project's tests are deterministic)
-PROPS = settings(max_examples=300, deadline=None, derandomize=True, database=None,
-                 suppress_health_check=[HealthCheck.too_slow])
+PROPS = settings(
+    max_examples=300, deadline=None, derandomize=True, database=None, suppress_health_check=[HealthCheck.too_slow]
+)
 
 any_float = st.floats(allow_nan=True, allow_infinity=True, width=64)
 scores = hnp.arrays(np.float64, st.integers(1, 64), elements=any_float)
@@ -42,11 +49,17 @@ def test_normalize_any_scores(lw):
     _check_normalised(normalize_log_weights(lw), lw.size)
 
 
-@pytest.mark.filterwarnings('ignore::RuntimeWarning')  # 1e308 / 1e-300 = inf, inf - inf = NaN: handled
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")  # 1e308 / 1e-300 = inf, inf - inf = NaN: handled
 @PROPS
-@given(st.integers(1, 64).flatmap(lambda n: st.tuples(
-    hnp.arrays(np.float64, n, elements=any_float), hnp.arrays(np.float64, n, elements=any_float),
-    st.floats(1e-300, 1e300))))
+@given(
+    st.integers(1, 64).flatmap(
+        lambda n: st.tuples(
+            hnp.arrays(np.float64, n, elements=any_float),
+            hnp.arrays(np.float64, n, elements=any_float),
+            st.floats(1e-300, 1e300),
+        )
+    )
+)
 def test_update_any_prior_scores_temperature(args):
     lw, ls, temp = args
     out = update_log_weights(lw, ls, temperature=temp)
@@ -64,9 +77,12 @@ class _Draws:
         return self.u[0] if size is None else np.resize(self.u, size)
 
 
-rngs = st.one_of(st.integers(0, 2**32 - 1).map(np.random.default_rng),
-                 st.lists(st.sampled_from([0.0, 0.5, float(np.nextafter(1.0, 0.0))])
-                          | st.floats(0.0, 1.0, exclude_max=True), min_size=1).map(_Draws))
+rngs = st.one_of(
+    st.integers(0, 2**32 - 1).map(np.random.default_rng),
+    st.lists(
+        st.sampled_from([0.0, 0.5, float(np.nextafter(1.0, 0.0))]) | st.floats(0.0, 1.0, exclude_max=True), min_size=1
+    ).map(_Draws),
+)
 
 
 @PROPS
@@ -97,14 +113,29 @@ def scans(draw):
 
 
 def _grid(res, hit, miss, clip, usable):
-    cfg = GridConfig(resolution_m=res, size_x_m=4.0, size_y_m=3.0, origin_x_m=-2.0, origin_y_m=-1.0,
-                     log_odds_hit=hit, log_odds_miss=-miss, clip_min=-clip, clip_max=clip,
-                     range_max_usable_m=usable)
+    cfg = GridConfig(
+        resolution_m=res,
+        size_x_m=4.0,
+        size_y_m=3.0,
+        origin_x_m=-2.0,
+        origin_y_m=-1.0,
+        log_odds_hit=hit,
+        log_odds_miss=-miss,
+        clip_min=-clip,
+        clip_max=clip,
+        range_max_usable_m=usable,
+    )
     return LogOddsGrid(cfg)
 
 
-grids = st.builds(_grid, st.sampled_from([0.05, 0.1, 0.37]), st.floats(0.01, 3.0),
-                  st.floats(0.01, 3.0), st.floats(0.5, 10.0), st.floats(0.1, 30.0))
+grids = st.builds(
+    _grid,
+    st.sampled_from([0.05, 0.1, 0.37]),
+    st.floats(0.01, 3.0),
+    st.floats(0.01, 3.0),
+    st.floats(0.5, 10.0),
+    st.floats(0.1, 30.0),
+)
 
 
 @PROPS
@@ -124,7 +155,7 @@ def test_grid_stays_in_clip_bounds_and_inside(g, scan_list):
         assert (h - before.shape[0]) % 256 == 0 and (w - before.shape[1]) % 256 == 0
         kept = lo.copy()
         kept.reshape(-1)[g.last_touched_idx] = np.nan  # cells this scan wrote
-        old = kept[dr:dr + before.shape[0], dc:dc + before.shape[1]]
+        old = kept[dr : dr + before.shape[0], dc : dc + before.shape[1]]
         same = np.isnan(old) | (old == before)
         assert same.all()  # every other old cell is where and what it was
         assert np.count_nonzero(np.nan_to_num(kept, nan=0.0)) == np.count_nonzero(np.nan_to_num(old, nan=0.0))

@@ -4,6 +4,7 @@ The checks read the package's source (AST), so they hold for modules nothing imp
 for imports inside functions. Each rule is also tried on a small bad module, so a checker that
 silently matches nothing fails here too.
 """
+
 from __future__ import annotations
 
 import ast
@@ -20,16 +21,64 @@ CORE = PKG / "core"
 #: package parts core/ must not import (core is imported by them, not the other way)
 FORBIDDEN_PACKAGE_PARTS = ("io", "nodes", "ros", "graph", "runner", "cli", "bench", "sim", "launch")
 #: third-party ROS modules (and ``*_msgs`` / ``*_interfaces`` message packages)
-FORBIDDEN_TOP = {"rclpy", "rosbags", "rosbag2_py", "rosidl_runtime_py", "tf2_ros", "launch",
-                 "launch_ros", "ament_index_python", "builtin_interfaces"}
+FORBIDDEN_TOP = {
+    "rclpy",
+    "rosbags",
+    "rosbag2_py",
+    "rosidl_runtime_py",
+    "tf2_ros",
+    "launch",
+    "launch_ros",
+    "ament_index_python",
+    "builtin_interfaces",
+}
 #: standard modules whose job is files, processes or the file system
-FORBIDDEN_STDLIB = {"os", "pathlib", "shutil", "glob", "tempfile", "pickle", "io", "sqlite3",
-                    "fcntl", "subprocess", "csv", "mmap"}
+FORBIDDEN_STDLIB = {
+    "os",
+    "pathlib",
+    "shutil",
+    "glob",
+    "tempfile",
+    "pickle",
+    "io",
+    "sqlite3",
+    "fcntl",
+    "subprocess",
+    "csv",
+    "mmap",
+}
 #: calls that read or write files (as a plain name or an attribute: ``cv2.imwrite``, ``p.open``)
-FILE_CALLS = {"open", "read_text", "write_text", "read_bytes", "write_bytes", "imread", "imwrite",
-              "imreadmulti", "imwritemulti", "load", "save", "savez", "savez_compressed", "loadtxt",
-              "savetxt", "genfromtxt", "fromfile", "tofile", "memmap", "FileStorage", "VideoCapture",
-              "VideoWriter", "mkdir", "unlink", "dump", "remove", "rename", "listdir", "scandir"}
+FILE_CALLS = {
+    "open",
+    "read_text",
+    "write_text",
+    "read_bytes",
+    "write_bytes",
+    "imread",
+    "imwrite",
+    "imreadmulti",
+    "imwritemulti",
+    "load",
+    "save",
+    "savez",
+    "savez_compressed",
+    "loadtxt",
+    "savetxt",
+    "genfromtxt",
+    "fromfile",
+    "tofile",
+    "memmap",
+    "FileStorage",
+    "VideoCapture",
+    "VideoWriter",
+    "mkdir",
+    "unlink",
+    "dump",
+    "remove",
+    "rename",
+    "listdir",
+    "scandir",
+}
 MAX_LINES = 800
 
 
@@ -100,22 +149,25 @@ def test_core_module_size(path: Path):
     assert n <= MAX_LINES, f"{path.relative_to(PKG)} has {n} lines (split it by stage)"
 
 
-@pytest.mark.parametrize("snippet, what", [
-    ("from ..io.calib import read_camera_yaml\n", "imports pf_slam_nodes.io.calib"),
-    ("from .. import io\n", "imports pf_slam_nodes.io"),
-    ("import pf_slam_nodes.nodes.mapper\n", "imports pf_slam_nodes.nodes.mapper"),
-    ("from ..ros import cdr\n", "imports pf_slam_nodes.ros"),
-    ("import rclpy\n", "ROS module rclpy"),
-    ("from sensor_msgs.msg import Image\n", "ROS module sensor_msgs.msg"),
-    ("from pf_slam_interfaces.msg import FogBatch\n", "ROS module pf_slam_interfaces.msg"),
-    ("from pathlib import Path\n", "imports pathlib"),
-    ("import os\n", "imports os"),
-    ("def f(p):\n    return open(p).read()\n", "calls open()"),
-    ("def f(p):\n    return p.read_text()\n", "calls read_text()"),
-    ("import cv2\ndef f(p, a):\n    cv2.imwrite(p, a)\n", "calls imwrite()"),
-    ("import numpy as np\ndef f(p):\n    return np.load(p)\n", "calls load()"),
-    ("import numpy as np\ndef f(p, a):\n    np.savetxt(p, a)\n", "calls savetxt()"),
-])
+@pytest.mark.parametrize(
+    "snippet, what",
+    [
+        ("from ..io.calib import read_camera_yaml\n", "imports pf_slam_nodes.io.calib"),
+        ("from .. import io\n", "imports pf_slam_nodes.io"),
+        ("import pf_slam_nodes.nodes.mapper\n", "imports pf_slam_nodes.nodes.mapper"),
+        ("from ..ros import cdr\n", "imports pf_slam_nodes.ros"),
+        ("import rclpy\n", "ROS module rclpy"),
+        ("from sensor_msgs.msg import Image\n", "ROS module sensor_msgs.msg"),
+        ("from pf_slam_interfaces.msg import FogBatch\n", "ROS module pf_slam_interfaces.msg"),
+        ("from pathlib import Path\n", "imports pathlib"),
+        ("import os\n", "imports os"),
+        ("def f(p):\n    return open(p).read()\n", "calls open()"),
+        ("def f(p):\n    return p.read_text()\n", "calls read_text()"),
+        ("import cv2\ndef f(p, a):\n    cv2.imwrite(p, a)\n", "calls imwrite()"),
+        ("import numpy as np\ndef f(p):\n    return np.load(p)\n", "calls load()"),
+        ("import numpy as np\ndef f(p, a):\n    np.savetxt(p, a)\n", "calls savetxt()"),
+    ],
+)
 def test_checker_catches(snippet: str, what: str):
     for where in (CORE / "bad.py", CORE / "texture" / "bad.py"):
         if snippet.startswith("from .."):  # one level deeper in core/texture/
@@ -127,8 +179,10 @@ def test_checker_catches(snippet: str, what: str):
 
 
 def test_checker_passes_pure_code():
-    src = ("import json\nimport math\nimport cv2\nimport numpy as np\nfrom .geometry import compose\n"
-           "def f(a):\n    return cv2.remap(a, a, a, 1), np.asarray(a), json.dumps({}), math.pi\n")
+    src = (
+        "import json\nimport math\nimport cv2\nimport numpy as np\nfrom .geometry import compose\n"
+        "def f(a):\n    return cv2.remap(a, a, a, 1), np.asarray(a), json.dumps({}), math.pi\n"
+    )
     assert violations(src, CORE / "ok.py") == []
 
 
@@ -153,8 +207,11 @@ def test_quaternion_and_se2_helpers_defined_once():
 def test_one_quaternion_to_matrix_formula():
     """The quaternion -> rotation matrix formula is written once in the package."""
     term = re.compile(r"1(\.0)?\s*-\s*2(\.0)?\s*\*\s*\(\s*y\s*\*\s*y\s*\+\s*z\s*\*\s*z\s*\)")
-    hits = [p.relative_to(PKG).as_posix() for p in sorted(PKG.rglob("*.py"))
-            for _ in term.finditer(p.read_text(encoding="utf-8"))]
+    hits = [
+        p.relative_to(PKG).as_posix()
+        for p in sorted(PKG.rglob("*.py"))
+        for _ in term.finditer(p.read_text(encoding="utf-8"))
+    ]
     assert hits == ["core/geometry.py"], hits
 
 
@@ -165,8 +222,13 @@ def test_the_runtime_package_does_not_import_the_development_tools():
     for path in sorted(PKG.rglob("*.py")):
         tree = ast.parse(path.read_text(), filename=str(path))
         for node in ast.walk(tree):
-            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
-                     else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            names = (
+                [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else [node.module or ""]
+                if isinstance(node, ast.ImportFrom)
+                else []
+            )
             if any(n.split(".")[0] == "pf_slam_tools" for n in names) and path.name != "cli.py":
                 offenders.append(f"{path.relative_to(PKG)}:{node.lineno}")
     assert not offenders, offenders

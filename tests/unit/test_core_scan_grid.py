@@ -1,4 +1,5 @@
 """Scan geometry, log-odds grid and ray tracing."""
+
 import math
 
 import numpy as np
@@ -11,8 +12,16 @@ L4 = math.log(4.0)
 
 
 def small_grid(**kw):
-    d = dict(resolution_m=1.0, size_x_m=10.0, size_y_m=10.0, origin_x_m=0.0, origin_y_m=0.0,
-             range_max_usable_m=20.0, log_odds_hit=L4, log_odds_miss=-L4)
+    d = dict(
+        resolution_m=1.0,
+        size_x_m=10.0,
+        size_y_m=10.0,
+        origin_x_m=0.0,
+        origin_y_m=0.0,
+        range_max_usable_m=20.0,
+        log_odds_hit=L4,
+        log_odds_miss=-L4,
+    )
     d.update(kw)
     return LogOddsGrid(GridConfig(**d))
 
@@ -79,8 +88,19 @@ def test_no_write_outside_grid():
     g.integrate_scan(np.array([-5.0, -5.0, 0.0]), np.array([200.0]), np.array([0.5]))  # sensor outside
     assert g.log_odds.shape == (10, 10)
     assert np.count_nonzero(g.log_odds) > 0
-    big = LogOddsGrid(GridConfig(resolution_m=1.0, size_x_m=12, size_y_m=12, origin_x_m=-1.0, origin_y_m=-1.0,
-                                 range_max_usable_m=20.0, log_odds_hit=L4, log_odds_miss=-L4, max_cells=144))
+    big = LogOddsGrid(
+        GridConfig(
+            resolution_m=1.0,
+            size_x_m=12,
+            size_y_m=12,
+            origin_x_m=-1.0,
+            origin_y_m=-1.0,
+            range_max_usable_m=20.0,
+            log_odds_hit=L4,
+            log_odds_miss=-L4,
+            max_cells=144,
+        )
+    )
     big.integrate_scan(np.array([8.5, 8.5, 0.3]), np.full(73, 50.0), ang)
     # the 10x10 grid equals the interior of a larger grid: nothing was wrapped or clipped into it
     inner = big.log_odds[1:11, 1:11]

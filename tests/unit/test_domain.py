@@ -2,6 +2,7 @@
 domain with a live DDS port are skipped, the lock lasts as long as its holders, an explicit
 domain is taken as given and a bad one is refused by name, and an isolated run's discovery
 settings hold inside the block only."""
+
 from __future__ import annotations
 
 import fcntl
@@ -96,8 +97,12 @@ def test_isolated_settings_and_the_environment(monkeypatch):
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "SUBNET")
     with domain.run_domain(single_participant=True) as dom:
         assert dom.isolated and dom.id in domain.POOL and dom.discovery == "OFF" and dom.lock_fd is not None
-        assert dom.environ_overrides() == {"ROS_AUTOMATIC_DISCOVERY_RANGE": "OFF", "ROS_STATIC_PEERS": None,
-                                           "ROS_LOCALHOST_ONLY": None, "ROS_DISCOVERY_SERVER": None}
+        assert dom.environ_overrides() == {
+            "ROS_AUTOMATIC_DISCOVERY_RANGE": "OFF",
+            "ROS_STATIC_PEERS": None,
+            "ROS_LOCALHOST_ONLY": None,
+            "ROS_DISCOVERY_SERVER": None,
+        }
         with pytest.raises(BlockingIOError):  # held
             fd = os.open(domain.lock_dir() / f"{dom.id}.lock", os.O_RDONLY)
             try:
@@ -132,8 +137,10 @@ def test_an_explicit_domain_held_by_another_run_is_warned_about(monkeypatch):
     """--domain N on a domain an isolated run (here: another process) holds: the run says so and
     summary.json records it; the holder's own children (a test's runs) are not warned."""
     a = FREE[1]
-    code = ("import sys, time; from pf_slam_nodes.ros import domain\n"
-            f"with domain.claim_domain([{a}]) as (d, _):\n    print(d, flush=True); time.sleep(30)\n")
+    code = (
+        "import sys, time; from pf_slam_nodes.ros import domain\n"
+        f"with domain.claim_domain([{a}]) as (d, _):\n    print(d, flush=True); time.sleep(30)\n"
+    )
     other = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     try:
         assert other.stdout.readline().strip() == str(a)

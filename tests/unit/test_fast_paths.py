@@ -1,4 +1,5 @@
 """The per-scan fast paths agree with the general code they shortcut."""
+
 import math
 
 import numpy as np
@@ -43,7 +44,7 @@ def test_gyro_buffer_grows_and_trims_without_changing_sums():
     dy = np.sin(np.arange(stamps.size) * 1e-3) * 1e-4
     cum = np.concatenate([[0.0], np.cumsum(dy)])
     for k in range(0, stamps.size, 10):  # batches of 10, as FogBatch
-        g.add(stamps[k:k + 10], dy[k:k + 10])
+        g.add(stamps[k : k + 10], dy[k : k + 10])
         if k % 5000 == 0 and k:
             g.trim(int(stamps[k - 12000])) if k >= 12000 else None
     assert g.last_stamp == stamps[-1]
@@ -87,20 +88,26 @@ def test_pose_estimates_best_and_mean():
     """The best particle, or the weighted mean (yaw on the circle): with two hypotheses 3 m
     apart the mean lands between them."""
     from pf_slam_nodes.core.stages import pose_estimate
-    particles = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.02], [-0.1, 0.0, -0.02],
-                          [3.0, 0.0, 0.5], [3.1, 0.0, 0.5]])
+
+    particles = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.02], [-0.1, 0.0, -0.02], [3.0, 0.0, 0.5], [3.1, 0.0, 0.5]])
     log_w = np.log(np.array([0.3, 0.2, 0.2, 0.15, 0.15]))
     np.testing.assert_array_equal(pose_estimate(particles, log_w, FilterConfig()), particles[0])
     mean = pose_estimate(particles, log_w, FilterConfig(pose_estimate="mean"))
-    yaw = math.atan2(0.2 * math.sin(0.02) - 0.2 * math.sin(0.02) + 0.3 * math.sin(0.5),
-                     0.3 + 0.4 * math.cos(0.02) + 0.3 * math.cos(0.5))
+    yaw = math.atan2(
+        0.2 * math.sin(0.02) - 0.2 * math.sin(0.02) + 0.3 * math.sin(0.5),
+        0.3 + 0.4 * math.cos(0.02) + 0.3 * math.cos(0.5),
+    )
     np.testing.assert_allclose(mean, [0.915, 0.0, yaw], atol=1e-12)
-    np.testing.assert_allclose(pose_estimate(particles[[3, 3]], np.log([0.5, 0.5]), FilterConfig(pose_estimate="mean")),
-                               particles[3], atol=1e-12)
+    np.testing.assert_allclose(
+        pose_estimate(particles[[3, 3]], np.log([0.5, 0.5]), FilterConfig(pose_estimate="mean")),
+        particles[3],
+        atol=1e-12,
+    )
 
 
 def test_odometry_peek_consumes_nothing():
     from pf_slam_nodes.core.odometry import OdometryBuffer
+
     for sync in ("exact", "interpolate"):
         b = OdometryBuffer(sync)
         for k in range(5):

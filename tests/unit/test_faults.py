@@ -1,5 +1,6 @@
 """Run-time input checks (core/faults.py), the encoder counter-jump clamp, and the removal of
 stale Fast DDS shared-memory segments after a killed node."""
+
 from __future__ import annotations
 
 import fcntl
@@ -26,8 +27,8 @@ def _scan(checks: ScanChecks, stamp_s: float, ranges=None, a_max: float = A_MAX)
 def test_clean_scans_raise_nothing_and_inf_is_no_return():
     c = ScanChecks()
     r = np.full(181, 5.0, dtype=np.float32)
-    r[:10] = np.inf   # REP 117: no return
-    r[10:20] = 0.0    # below range_min: the sensor's "no reading"
+    r[:10] = np.inf  # REP 117: no return
+    r[10:20] = 0.0  # below range_min: the sensor's "no reading"
     for k in range(5):
         assert _scan(c, 0.1 * k, r) == (True, [])
     # the other convention: angle_max one increment past the last beam
@@ -60,10 +61,10 @@ def test_beam_count_disagreeing_with_the_angles_is_not_corrected_with():
 def test_time_backwards_and_gap_counted_once_per_step():
     c = ScanChecks(time_gap_s=60.0)
     _scan(c, 10.0)
-    _, f = _scan(c, 9.2)                    # 0.8 s back (the Intel log does this)
+    _, f = _scan(c, 9.2)  # 0.8 s back (the Intel log does this)
     assert [k for k, _ in f] == ["time_backwards"] and "0.800 s" in f[0][1]
-    assert _scan(c, 9.3)[1] == []           # time goes on from there: no second fault
-    _, f = _scan(c, 200.0)                  # minutes later
+    assert _scan(c, 9.3)[1] == []  # time goes on from there: no second fault
+    _, f = _scan(c, 200.0)  # minutes later
     assert [k for k, _ in f] == ["time_gap"] and "190.7 s" in f[0][1]
     assert _scan(c, 200.1)[1] == []
     assert c.counts["time_backwards"] == 1 and c.counts["time_gap"] == 1
@@ -81,15 +82,15 @@ def test_unreadable_scan_counted():
 def test_encoder_counter_jump_discarded_motion_goes_on():
     w = WheelOdometryIntegrator(0.6, 0.6, 1.5, max_speed_mps=50.0)
     ref = WheelOdometryIntegrator(0.6, 0.6, 1.5)
-    rad_per_step = 10.0 * 0.01 / 0.3        # 10 m/s at 100 Hz on a 0.3 m radius
+    rad_per_step = 10.0 * 0.01 / 0.3  # 10 m/s at 100 Hz on a 0.3 m radius
     offset = 0.0
     for k in range(100):
         if k == 50:
-            offset = 2.0 ** 20              # the counter jumps (reset / wrap / glitch)
+            offset = 2.0**20  # the counter jumps (reset / wrap / glitch)
         a = k * rad_per_step
         pose = w.step(a + offset, a + offset, 0.01)
         expected = ref.step(a, a, 0.01)
-        if k != 50:                         # the jump's step is the one step lost
+        if k != 50:  # the jump's step is the one step lost
             assert w.jumps == (1 if k > 50 else 0)
     assert w.jumps == 1
     np.testing.assert_allclose(pose[0], expected[0] - rad_per_step * 0.3, atol=1e-9)
@@ -108,13 +109,13 @@ def test_remove_stale_shm_only_unlocked_participant_segments(tmp_path):
         (tmp_path / name).write_bytes(b"\0" * 64)
         (tmp_path / f"{name}_el").touch()
 
-    segment("fastrtps_00000000000000aa")   # owner gone: lock free
-    segment("fastrtps_00000000000000bb")   # owner alive: flock held
-    segment("fastrtps_port7411")           # shared port segment: never touched
+    segment("fastrtps_00000000000000aa")  # owner gone: lock free
+    segment("fastrtps_00000000000000bb")  # owner alive: flock held
+    segment("fastrtps_port7411")  # shared port segment: never touched
     old = time.time() - 10
     for f in tmp_path.iterdir():
         os.utime(f, (old, old))
-    segment("fastrtps_00000000000000cc")   # just created: too young to judge
+    segment("fastrtps_00000000000000cc")  # just created: too young to judge
     fd = os.open(tmp_path / "fastrtps_00000000000000bb_el", os.O_RDONLY)
     fcntl.flock(fd, fcntl.LOCK_EX)
     try:
@@ -123,5 +124,10 @@ def test_remove_stale_shm_only_unlocked_participant_segments(tmp_path):
         os.close(fd)
     assert sorted(removed) == ["fastrtps_00000000000000aa", "fastrtps_00000000000000aa_el"]
     assert sorted(p.name for p in tmp_path.iterdir()) == [
-        "fastrtps_00000000000000bb", "fastrtps_00000000000000bb_el", "fastrtps_00000000000000cc",
-        "fastrtps_00000000000000cc_el", "fastrtps_port7411", "fastrtps_port7411_el"]
+        "fastrtps_00000000000000bb",
+        "fastrtps_00000000000000bb_el",
+        "fastrtps_00000000000000cc",
+        "fastrtps_00000000000000cc_el",
+        "fastrtps_port7411",
+        "fastrtps_port7411_el",
+    ]

@@ -1,5 +1,6 @@
 """The map without a size: the grid and the likelihood field grow by whole tiles where scans
 reach, memory follows the explored box, the field stays equal to a dense recompute."""
+
 import math
 import time
 
@@ -59,7 +60,7 @@ def test_tiles_only_where_scans_touch_and_memory_follows_the_explored_box():
     occ = g.occupancy()
     for y in (2.0, -2.0):  # both walls between x = 390 and 398 m: occupied along most of it
         a, b = g.world_to_cell(np.array([[390.0, y], [398.0, y]]))
-        band = occ[a[1] - 1:a[1] + 2, a[0]:b[0]] >= 65
+        band = occ[a[1] - 1 : a[1] + 2, a[0] : b[0]] >= 65
         assert band.any(axis=0).mean() > 0.6  # (a pillar steps the wall in at 390 m)
     assert g.growths < 20  # amortised: ~log growth, not one per scan
 
@@ -67,8 +68,9 @@ def test_tiles_only_where_scans_touch_and_memory_follows_the_explored_box():
 def test_a_scan_far_outside_integrates_where_it_is():
     """A scan 500 m south-west of a 10 m grid lands where it is in the world: its endpoints are
     occupied, its beams free, and the first scan's cells are untouched by the growth."""
-    g = LogOddsGrid(cfg.GridConfig(size_x_m=10.0, size_y_m=10.0, range_max_usable_m=20.0,
-                                   log_odds_hit=2.0), np.zeros(2))
+    g = LogOddsGrid(
+        cfg.GridConfig(size_x_m=10.0, size_y_m=10.0, range_max_usable_m=20.0, log_odds_hit=2.0), np.zeros(2)
+    )
     g.integrate_scan(np.zeros(3), np.full(181, 3.0), ANG)
     first = g.occupancy(g.touched_bounds)
     first_origin = g.bounds_origin(g.touched_bounds)
@@ -83,7 +85,7 @@ def test_a_scan_far_outside_integrates_where_it_is():
     assert g.occupancy()[mid[1], mid[0]] < 50
     # the first scan's cells: same values at the same world place
     c = g.world_to_cell(first_origin + 0.5 * g.resolution)
-    np.testing.assert_array_equal(g.occupancy()[c[1]:c[1] + first.shape[0], c[0]:c[0] + first.shape[1]], first)
+    np.testing.assert_array_equal(g.occupancy()[c[1] : c[1] + first.shape[0], c[0] : c[0] + first.shape[1]], first)
     np.testing.assert_allclose(g.cell_to_world(g.world_to_cell(ends)), ends, atol=g.resolution)
 
 
@@ -91,8 +93,9 @@ def test_growing_grid_equals_a_big_fixed_grid():
     """Where both have cells, the growing grid's cells are those of a fixed 200 m grid with the
     same origin (the growing one also has the cells west and south of that origin), bit for bit."""
     small = LogOddsGrid(cfg.GridConfig(size_x_m=10.0, size_y_m=10.0, origin_x_m=-5.0, origin_y_m=-5.0))
-    big = LogOddsGrid(cfg.GridConfig(size_x_m=200.0, size_y_m=200.0, origin_x_m=-5.0, origin_y_m=-5.0,
-                                     max_cells=4000 * 4000))  # fixed
+    big = LogOddsGrid(
+        cfg.GridConfig(size_x_m=200.0, size_y_m=200.0, origin_x_m=-5.0, origin_y_m=-5.0, max_cells=4000 * 4000)
+    )  # fixed
     rng = np.random.default_rng(3)
     for k in range(60):
         pose = np.array([k * 2.0, k * 1.1, rng.uniform(-3, 3)])
@@ -123,7 +126,7 @@ def _drive(size_m, steps, max_cells=100_000_000):
     g = cfg.GridConfig(size_x_m=size_m, size_y_m=size_m, range_max_usable_m=15.0, max_cells=max_cells)
     mapper, corr = MappingStage(f, g), CorrectionStage(f, g, c, r)
     times = []
-    for k, x in enumerate(steps):
+    for x in steps:
         # a corridor that turns north at x = 60 m: growth along both axes, on both sides of y
         pose = np.array([x, 0.0, 0.0]) if x < 60 else np.array([60.0, x - 60.0, math.pi / 2])
         local = pose.copy()
@@ -148,7 +151,7 @@ def test_field_equals_a_dense_recompute_after_growth():
     obst = np.zeros((f.height, f.width), bool)
     a0, b0 = max(r0, 0), max(c0, 0)
     a1, b1 = min(r0 + occ.shape[0], f.height), min(c0 + occ.shape[1], f.width)
-    obst[a0:a1, b0:b1] = occ[a0 - r0:a1 - r0, b0 - c0:b1 - c0] >= corr.corr_cfg.occupied_threshold
+    obst[a0:a1, b0:b1] = occ[a0 - r0 : a1 - r0, b0 - c0 : b1 - c0] >= corr.corr_cfg.occupied_threshold
     np.testing.assert_array_equal(f.obstacles, obst)
     dense = build_likelihood_field_from_mask(f.obstacles, f.resolution, f.origin, corr.corr_cfg)
     np.testing.assert_array_equal(f.distance_m, dense.distance_m)
@@ -164,10 +167,13 @@ def test_per_scan_cost_does_not_follow_the_map_size(capsys):
     for size in (8.0, 400.0):
         mapper, corr, t = _drive(size, steps)
         n = len(t) // 5
-        out.append((size, 1e3 * np.median(t[5:n]), 1e3 * np.median(t[-n:]), mapper.grid.log_odds.shape,
-                    mapper.grid.growths))
+        out.append(
+            (size, 1e3 * np.median(t[5:n]), 1e3 * np.median(t[-n:]), mapper.grid.log_odds.shape, mapper.grid.growths)
+        )
     with capsys.disabled():
         for size, early, late, shape, growths in out:
-            print(f"\n[growmap bench] initial {size:g} m: median ms/scan (map+field) first fifth "
-                  f"{early:.2f}, last fifth {late:.2f}; final grid {shape}, growths {growths}")
+            print(
+                f"\n[growmap bench] initial {size:g} m: median ms/scan (map+field) first fifth "
+                f"{early:.2f}, last fifth {late:.2f}; final grid {shape}, growths {growths}"
+            )
     assert out[0][3][0] * out[0][3][1] < out[1][3][0] * out[1][3][1]  # the grown grid is the smaller

@@ -10,13 +10,13 @@ import pytest
 
 from pf_slam_nodes.io.mines import MINES_ANGLE_INCREMENT, MINES_ANGLE_MIN, read_mines
 
-DATA = Path(__file__).resolve().parents[2].parent / 'shared' / 'data' / 'mines'
-needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f'{DATA} not available')
+DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "mines"
+needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"{DATA} not available")
 
 
 @needs_data
 def test_exp1():
-    log = read_mines(DATA / 'exp1.dat')
+    log = read_mines(DATA / "exp1.dat")
     assert len(log.stamps_s) == 756
     assert log.ranges.shape == (756, 682) and log.ranges.dtype == np.float32
     assert log.skipped == {} and log.warnings == []
@@ -30,7 +30,7 @@ def test_exp1():
         assert np.mean(np.diff(ticks) >= 0) > 0.9
     assert log.left_wheel_rad[-1] == pytest.approx(211786 * 2 * math.pi / 2000)
     # 0 mm (and URG error codes < 20 mm) -> +inf; the rest in metres within the URG span
-    raw = np.loadtxt(DATA / 'exp1.dat', usecols=range(24, 706), max_rows=5)
+    raw = np.loadtxt(DATA / "exp1.dat", usecols=range(24, 706), max_rows=5)
     np.testing.assert_array_equal(np.isposinf(log.ranges[:5]), raw < 20)
     np.testing.assert_allclose(log.ranges[:5][raw >= 20], raw[raw >= 20] / 1000.0, rtol=1e-6)
     finite = log.ranges[np.isfinite(log.ranges)]
@@ -44,33 +44,33 @@ def test_exp1():
 
 @needs_data
 def test_bad_lines(tmp_path):
-    lines = (DATA / 'exp1.dat').read_text().splitlines(keepends=True)[:6]
-    short = ' '.join(lines[1].split()[:-3]) + '\n'
+    lines = (DATA / "exp1.dat").read_text().splitlines(keepends=True)[:6]
+    short = " ".join(lines[1].split()[:-3]) + "\n"
     tok = lines[2].split()
-    tok[30] = 'abc'
-    nonnum = ' '.join(tok) + '\n'
+    tok[30] = "abc"
+    nonnum = " ".join(tok) + "\n"
     tok = lines[3].split()
-    tok[30] = 'nan'
-    nan = ' '.join(tok) + '\n'
-    p = tmp_path / 'bad.dat'
+    tok[30] = "nan"
+    nan = " ".join(tok) + "\n"
+    p = tmp_path / "bad.dat"
     p.write_text(lines[0] + short + nonnum + nan + lines[4] + lines[5])
     log = read_mines(p)
     assert len(log.stamps_s) == 3
     assert list(log.line_nos) == [1, 5, 6]
-    assert log.skipped == {'malformed': 3}
-    joined = '\n'.join(log.warnings)
-    assert 'bad.dat:2: expected 707 fields, got 704' in joined
-    assert 'bad.dat:3: non-numeric' in joined
-    assert 'bad.dat:4: NaN' in joined
+    assert log.skipped == {"malformed": 3}
+    joined = "\n".join(log.warnings)
+    assert "bad.dat:2: expected 707 fields, got 704" in joined
+    assert "bad.dat:3: non-numeric" in joined
+    assert "bad.dat:4: NaN" in joined
 
 
 def test_empty_file(tmp_path):
-    p = tmp_path / 'empty.dat'
-    p.write_text('')
+    p = tmp_path / "empty.dat"
+    p.write_text("")
     log = read_mines(p)
     assert log.ranges.shape == (0, 682) and len(log.left_ticks) == 0
 
 
 def test_bad_params(tmp_path):
-    with pytest.raises(ValueError, match='ticks_per_rev'):
-        read_mines(tmp_path / 'x.dat', ticks_per_rev=0)
+    with pytest.raises(ValueError, match="ticks_per_rev"):
+        read_mines(tmp_path / "x.dat", ticks_per_rev=0)

@@ -1,5 +1,6 @@
 """The launch file (run only on a ROS install: `launch` is not in the pip venv) is valid Python
 and starts node executables that the package really installs."""
+
 import ast
 import os
 from pathlib import Path
@@ -39,6 +40,7 @@ def test_launch_file_profile_argument():
     assert "profiles.profile_for_bag(bag, forced=profile)" in source
     assert 'profiles.profile_file("indoor")' in source
     from pf_slam_nodes import profiles
+
     for name in ("indoor", "kaist", "mines", "sim_indoor"):
         assert name in source and profiles.profile_file(name).is_file()
     assert profiles.PROFILES["indoor"] == _constant(LAUNCH, "DEFAULT_PARAMS")
@@ -51,13 +53,15 @@ def test_launch_plan_live_and_bag():
     import pytest
 
     from pf_slam_nodes.launch_plan import graph_nodes
+
     live = graph_nodes()
     assert list(live) == ["predictor", "correlator", "mapper"]
     assert all("use_sim_time" not in p for p in live.values())
     assert live["mapper"]["publish_sensor_tf"] is False
     assert all(live[n]["mount_from_tf"] is True for n in ("predictor", "correlator", "mapper"))
-    bag = graph_nodes(bag="/data/bag", use_sim_time="true", texture="true", odometry_source="tf",
-                      scan_topic="/front/scan")
+    bag = graph_nodes(
+        bag="/data/bag", use_sim_time="true", texture="true", odometry_source="tf", scan_topic="/front/scan"
+    )
     assert list(bag) == ["bag_replay", "predictor", "correlator", "mapper", "texture"]
     assert bag["bag_replay"] == {"bag": "/data/bag", "scan_topic": "/front/scan"}
     assert all(bag[n]["use_sim_time"] is True for n in ("predictor", "correlator", "mapper", "texture"))

@@ -1,6 +1,7 @@
 """Issue 17.2/17.3 in the core and the bag inspection: the scan's own range limits gate its
 ranges (REP 117), bad limits are a counted fault, and every lidar mount in /tf_static (yaw,
 offsets, roll/pitch, chains) becomes the parameters that put each return where it is."""
+
 from __future__ import annotations
 
 import math
@@ -10,12 +11,12 @@ import pytest
 
 from pf_slam_nodes.core.config import FilterConfig, GridConfig, LaserConfig
 from pf_slam_nodes.core.faults import SCAN_BAD_LIMITS, ScanChecks
+from pf_slam_nodes.core.geometry import rpy_to_quat
 from pf_slam_nodes.core.grid import LogOddsGrid
 from pf_slam_nodes.core.scan import gate_ranges, planar_scan, scan_to_points, transform_points
 from pf_slam_nodes.core.stages import MappingStage
 from pf_slam_nodes.graph import LidarMount, lidar_mount
 from pf_slam_nodes.io.bag import bag_info, laser_scan, open_writer, tf_static
-from pf_slam_nodes.core.geometry import rpy_to_quat
 from pf_slam_tools.sim.indoor import beam_angles, distance_to_segments, mount_pose, office_world, ray_cast
 
 PI = math.pi
@@ -36,8 +37,9 @@ def test_gate_ranges_rep117():
 
 def test_grid_beyond_range_max_is_neither_hit_nor_free_but_inf_is_free():
     """main: a finite return beyond the scan's range_max was traced as free space."""
-    g = LogOddsGrid(GridConfig(resolution_m=0.1, size_x_m=60.0, size_y_m=60.0, range_max_usable_m=20.0),
-                    center_xy=np.zeros(2))
+    g = LogOddsGrid(
+        GridConfig(resolution_m=0.1, size_x_m=60.0, size_y_m=60.0, range_max_usable_m=20.0), center_xy=np.zeros(2)
+    )
     free, hit = g.trace_scan(np.zeros(3), np.array([15.0]), np.zeros(1), None, 0.1, 12.0)
     assert free.size == 0 and hit.size == 0
     free, hit = g.trace_scan(np.zeros(3), np.array([np.inf]), np.zeros(1), None, 0.1, 12.0)
@@ -57,8 +59,15 @@ def test_stages_ignore_returns_beyond_the_scans_range_max():
     assert np.isnan(r[0]) and 0 < r[1] < 10.0
 
 
-@pytest.mark.parametrize("limits, text", [((0.1, 0.0), "range_max 0"), ((5.0, 2.0), "range_min 5, range_max 2"),
-                                          ((0.0, float("nan")), "range_max nan"), ((-1.0, 5.0), "range_min -1")])
+@pytest.mark.parametrize(
+    "limits, text",
+    [
+        ((0.1, 0.0), "range_max 0"),
+        ((5.0, 2.0), "range_min 5, range_max 2"),
+        ((0.0, float("nan")), "range_max nan"),
+        ((-1.0, 5.0), "range_min -1"),
+    ],
+)
 def test_bad_limits_are_a_counted_fault_and_the_scan_not_used(limits, text):
     c = ScanChecks()
     usable, faults = c.check(0, np.full(181, 5.0, np.float32), -PI / 2, PI / 2, INC, *limits)
@@ -76,8 +85,10 @@ MOUNTS = {
     "yaw90_offset": [("base_link", "laser", (0.3, 0.1, 0.2), (0.0, 0.0, PI / 2))],
     "upside_down": [("base_link", "laser", (0.15, -0.05, 0.3), (PI, 0.0, 0.0))],
     "upside_down_yaw": [("base_link", "laser", (0.1, 0.2, 0.3), (PI, 0.0, 0.7))],
-    "chain": [("base_link", "shell_link", (0.0, 0.0, 0.09), (0.0, 0.0, 0.0)),
-              ("shell_link", "rplidar_link", (-0.04, 0.0, 0.1), (0.0, 0.0, PI / 2))],
+    "chain": [
+        ("base_link", "shell_link", (0.0, 0.0, 0.09), (0.0, 0.0, 0.0)),
+        ("shell_link", "rplidar_link", (-0.04, 0.0, 0.1), (0.0, 0.0, PI / 2)),
+    ],
 }
 
 
@@ -94,8 +105,9 @@ def test_each_mount_puts_every_return_on_its_wall(name):
     world = office_world()
     robot = np.array([1.5, 0.2, 0.4])  # in the corridor (the world is in the start frame)
     c, s = math.cos(robot[2]), math.sin(robot[2])
-    sensor = np.array([robot[0] + c * t[0] - s * t[1], robot[1] + s * t[0] + c * t[1],
-                       robot[2] + math.atan2(rot[1, 0], rot[0, 0])])
+    sensor = np.array(
+        [robot[0] + c * t[0] - s * t[1], robot[1] + s * t[0] + c * t[1], robot[2] + math.atan2(rot[1, 0], rot[0, 0])]
+    )
     ranges = ray_cast(sensor, math.copysign(1.0, rot[2, 2]) * beam_angles(), world.segments, 20.0)
     r, a, offset = planar_scan(ranges, beam_angles(), lcfg, fcfg.sensor_offset, 0.1, 20.0)
     assert np.array_equal(np.isinf(r), np.isinf(ranges))  # no-returns stay no-returns (free space)
@@ -124,17 +136,22 @@ def test_lidar_mount_composes_a_chain_and_finds_the_base(tmp_path):
     assert m.source == "/tf_static" and m.chain == ["base_link", "shell_link", "rplidar_link"] and not m.warnings
     np.testing.assert_allclose(m.t, t, atol=1e-12)
     np.testing.assert_allclose(m.rot, rot, atol=1e-12)
-    assert m.describe().startswith("lidar mount from /tf_static: base_link -> shell_link -> rplidar_link: "
-                                   "x -0.04 y 0.00 z 0.19, yaw 90.0°")
+    assert m.describe().startswith(
+        "lidar mount from /tf_static: base_link -> shell_link -> rplidar_link: x -0.04 y 0.00 z 0.19, yaw 90.0°"
+    )
     p = m.params()
-    assert p["filter.sensor_offset_yaw_rad"] == pytest.approx(PI / 2) and p["filter.sensor_offset_x_m"] == pytest.approx(-0.04)
+    assert p["filter.sensor_offset_yaw_rad"] == pytest.approx(PI / 2) and p[
+        "filter.sensor_offset_x_m"
+    ] == pytest.approx(-0.04)
 
 
 def test_lidar_mount_base_from_tf_under_a_common_root(tmp_path):
     """base_footprint -> base_link and base_footprint -> laser, /tf odom -> base_link: the laser
     in base_link = inverse(base_link in base_footprint) * laser in base_footprint."""
-    tfs = [("base_footprint", "base_link", (0.0, 0.0, 0.1), (0.0, 0.0, 0.0)),
-           ("base_footprint", "laser", (0.2, 0.0, 0.3), (0.0, 0.0, PI / 2))]
+    tfs = [
+        ("base_footprint", "base_link", (0.0, 0.0, 0.1), (0.0, 0.0, 0.0)),
+        ("base_footprint", "laser", (0.2, 0.0, 0.3), (0.0, 0.0, PI / 2)),
+    ]
     bag, info = _bag(tmp_path / "fp", tfs, tf=("odom", "base_link", (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)))
     m = lidar_mount(bag, info, {"scan": "/scan"})
     assert m.base_frame == "base_link" and m.base_from_tf and not m.warnings

@@ -1,6 +1,7 @@
 """Localization on a fixed map, ROS-free (core/localization.py, CorrectionStage.set_map): where
 the particles start, that a scan finds the true pose from no guess and from a wrong one, the
 convergence rule, and the map files it reads."""
+
 from __future__ import annotations
 
 import math
@@ -13,8 +14,14 @@ import pytest
 from pf_slam_nodes.core import config as cfg
 from pf_slam_nodes.core.correlation import build_likelihood_field
 from pf_slam_nodes.core.geometry import wrap_angle
-from pf_slam_nodes.core.localization import (Localizer, coarse_scores, free_mask, sample_free_poses,
-                                             sample_gaussian_poses, spread)
+from pf_slam_nodes.core.localization import (
+    Localizer,
+    coarse_scores,
+    free_mask,
+    sample_free_poses,
+    sample_gaussian_poses,
+    spread,
+)
 from pf_slam_nodes.core.stages import CorrectionStage, PredictionStage
 from pf_slam_nodes.io.mapfile import read_map
 
@@ -23,16 +30,21 @@ GT_MAP = ROOT / "bags" / "ground_truth_map.yaml"  # the simulated office, in its
 
 
 def _stage(**loc) -> CorrectionStage:
-    return CorrectionStage(cfg.FilterConfig(num_particles=30), cfg.GridConfig(), cfg.CorrelationConfig(),
-                           cfg.ResampleConfig(), None, cfg.LocalizationConfig(**loc))
+    return CorrectionStage(
+        cfg.FilterConfig(num_particles=30),
+        cfg.GridConfig(),
+        cfg.CorrelationConfig(),
+        cfg.ResampleConfig(),
+        None,
+        cfg.LocalizationConfig(**loc),
+    )
 
 
 def _office_scan(pose: np.ndarray, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """The simulator's laser (181 beams, 1 cm noise) at a true pose of the office."""
     indoor = pytest.importorskip("pf_slam_tools.sim.indoor")
     angles = indoor.beam_angles()
-    r = indoor.ray_cast(np.asarray(pose, float)[None], angles, indoor.office_world().segments,
-                        indoor.RANGE_MAX_M)[0]
+    r = indoor.ray_cast(np.asarray(pose, float)[None], angles, indoor.office_world().segments, indoor.RANGE_MAX_M)[0]
     r = r + np.random.default_rng(seed).normal(0.0, 0.01, r.shape)
     return np.where(np.isfinite(r), r, np.inf), angles
 
@@ -71,13 +83,15 @@ def test_coarse_scores_are_sums_of_nearest_cell_lookups(monkeypatch):
     pts = rng.uniform(-6, 6, (40, 2))
     got = coarse_scores(poses, pts, field)
     c, s = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
-    world = np.stack([poses[:, 0:1] + c * pts[:, 0] - s * pts[:, 1],
-                      poses[:, 1:2] + s * pts[:, 0] + c * pts[:, 1]], axis=-1)
+    world = np.stack(
+        [poses[:, 0:1] + c * pts[:, 0] - s * pts[:, 1], poses[:, 1:2] + s * pts[:, 0] + c * pts[:, 1]], axis=-1
+    )
     ref = field.lookup(world).sum(axis=1, dtype=np.float64)
     close = np.isclose(got, ref, rtol=1e-5, atol=1e-3)
     assert close.mean() > 0.97  # the same cells but for float32 rounding at a cell's edge
     assert np.array_equal(coarse_scores(poses[:7], pts, field), got[:7])  # chunking does not matter
     import pf_slam_nodes.core.localization as loc
+
     monkeypatch.setattr(loc, "_use_remap", lambda *a: False)  # a map too large for remap: numpy lookups
     assert np.array_equal(coarse_scores(poses, pts, field), ref)
 
@@ -119,8 +133,13 @@ def test_spread_and_reduce():
     assert abs(sxy - 0.1 * math.sqrt(2)) < 0.01 and abs(syaw - 0.02) < 0.002
     # two far hypotheses: not converged; one of them weighted out: converged
     two = np.vstack([p[:500], p[500:] + [5.0, 0.0, 0.0]])
-    loc = Localizer(np.zeros((10, 10), np.int8), 0.1, (0, 0), cfg.CorrelationConfig(),
-                    cfg.LocalizationConfig(converged_xy_m=0.2, converged_yaw_rad=0.05))
+    loc = Localizer(
+        np.zeros((10, 10), np.int8),
+        0.1,
+        (0, 0),
+        cfg.CorrelationConfig(),
+        cfg.LocalizationConfig(converged_xy_m=0.2, converged_yaw_rad=0.05),
+    )
     assert not loc.converged(two, lw)
     lw2 = np.where(np.arange(1000) < 500, 0.0, -1e9)
     assert loc.converged(two, lw2)
@@ -130,9 +149,12 @@ def test_spread_and_reduce():
 
 def test_localization_config_checks_its_values():
     assert cfg.LocalizationConfig().init_particles == 2000
-    for bad, match in (({"init_particles": 0}, "init_particles"), ({"coarse_sigma_m": 0.0}, "coarse_sigma_m"),
-                       ({"use_initial_pose": 1}, "use_initial_pose"), ({"initial_pose_x_m": math.nan},
-                                                                          "initial_pose_x_m")):
+    for bad, match in (
+        ({"init_particles": 0}, "init_particles"),
+        ({"coarse_sigma_m": 0.0}, "coarse_sigma_m"),
+        ({"use_initial_pose": 1}, "use_initial_pose"),
+        ({"initial_pose_x_m": math.nan}, "initial_pose_x_m"),
+    ):
         with pytest.raises(ValueError, match=match):
             cfg.LocalizationConfig(**bad)
 
@@ -146,8 +168,9 @@ def _write(tmp_path: Path, img: np.ndarray, yaml: str, name: str = "m.png") -> P
 
 def test_read_map_modes_as_map_server(tmp_path):
     img = np.array([[0, 254, 205, 100]], np.uint8)  # black, white, grey, dark grey
-    occ, _, origin = read_map(_write(tmp_path, img, "mode: trinary\nnegate: 0\noccupied_thresh: 0.65\n"
-                                                    "free_thresh: 0.196\n"))
+    occ, _, origin = read_map(
+        _write(tmp_path, img, "mode: trinary\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n")
+    )
     assert occ.tolist() == [[100, 0, -1, -1]] and origin.tolist() == [1.0, 2.0, 0.0]
     occ, _, _ = read_map(_write(tmp_path, img, "mode: trinary\nnegate: 1\noccupied_thresh: 0.65\nfree_thresh: 0.196\n"))
     assert occ.tolist() == [[0, 100, 100, -1]]  # negate: white is occupied
@@ -177,16 +200,23 @@ def test_read_map_errors_name_the_file(tmp_path):
 
 def test_localize_flags_become_parameters_and_bad_ones_one_line_errors(tmp_path):
     from pf_slam_nodes.graph import RunError, _localize_overrides
+
     assert _localize_overrides(None, None) == {}
     o = _localize_overrides(str(GT_MAP), "1,-2,0.5")
     assert o["mapper"] == {"mode": "localization", "map_file": str(GT_MAP.resolve())}
-    assert o["correlator"] == {"mode": "localization", "localization.use_initial_pose": True,
-                               "localization.initial_pose_x_m": 1.0, "localization.initial_pose_y_m": -2.0,
-                               "localization.initial_pose_yaw_rad": 0.5}
+    assert o["correlator"] == {
+        "mode": "localization",
+        "localization.use_initial_pose": True,
+        "localization.initial_pose_x_m": 1.0,
+        "localization.initial_pose_y_m": -2.0,
+        "localization.initial_pose_yaw_rad": 0.5,
+    }
     assert "localization.use_initial_pose" not in _localize_overrides(str(GT_MAP), None)["correlator"]
-    for args, match in (((None, "1,2,3"), "--initial-pose needs --localize"),
-                        ((str(tmp_path / "no.yaml"), None), r"--localize: .*no\.yaml: cannot read"),
-                        ((str(GT_MAP), "1,2"), "expected X,Y,YAW")):
+    for args, match in (
+        ((None, "1,2,3"), "--initial-pose needs --localize"),
+        ((str(tmp_path / "no.yaml"), None), r"--localize: .*no\.yaml: cannot read"),
+        ((str(GT_MAP), "1,2"), "expected X,Y,YAW"),
+    ):
         with pytest.raises(RunError, match=match) as e:
             _localize_overrides(*args)
         assert "\n" not in str(e.value)
@@ -197,13 +227,17 @@ def _room_with_pillar():
     corner: segments, and its map at 0.05 m (origin (-6, -6))."""
     room = [(-5, -5, 5, -5), (5, -5, 5, 5), (5, 5, -5, 5), (-5, 5, -5, -5)]
     cx, cy, h = -3.5, 3.5, 0.3
-    pillar = [(cx - h, cy - h, cx + h, cy - h), (cx + h, cy - h, cx + h, cy + h),
-              (cx + h, cy + h, cx - h, cy + h), (cx - h, cy + h, cx - h, cy - h)]
+    pillar = [
+        (cx - h, cy - h, cx + h, cy - h),
+        (cx + h, cy - h, cx + h, cy + h),
+        (cx + h, cy + h, cx - h, cy + h),
+        (cx - h, cy + h, cx - h, cy - h),
+    ]
     segs = np.array(room + pillar, dtype=np.float64)
     res, origin = 0.05, np.array([-6.0, -6.0])
     occ = np.full((240, 240), -1, np.int8)
     occ[20:220, 20:220] = 0  # inside the room
-    occ[int((cy - h + 6) / res):int((cy + h + 6) / res), int((cx - h + 6) / res):int((cx + h + 6) / res)] = -1
+    occ[int((cy - h + 6) / res) : int((cy + h + 6) / res), int((cx - h + 6) / res) : int((cx + h + 6) / res)] = -1
     img = np.zeros(occ.shape, np.uint8)
     for x0, y0, x1, y1 in segs:
         p0 = tuple(int(v) for v in np.floor((np.array([x0, y0]) - origin) / res))
@@ -221,8 +255,9 @@ def test_ambiguous_start_keeps_its_hypotheses_until_a_scan_decides():
     segs, occ, res, origin = _room_with_pillar()
     angles = indoor.beam_angles()
     fc = cfg.FilterConfig(num_particles=30)
-    st = CorrectionStage(fc, cfg.GridConfig(), cfg.CorrelationConfig(), cfg.ResampleConfig(), None,
-                         cfg.LocalizationConfig())
+    st = CorrectionStage(
+        fc, cfg.GridConfig(), cfg.CorrelationConfig(), cfg.ResampleConfig(), None, cfg.LocalizationConfig()
+    )
     st.set_map(occ, res, origin)
     pred = PredictionStage(fc, cfg.OdometryMotionConfig())
     headings = []
@@ -237,10 +272,16 @@ def test_ambiguous_start_keeps_its_hypotheses_until_a_scan_decides():
         weights = []
         for q in range(4):
             a = q * math.pi / 2
-            image = np.array([math.cos(a) * truth[0] - math.sin(a) * truth[1],
-                              math.sin(a) * truth[0] + math.cos(a) * truth[1], yaw + a])
-            near = ((np.hypot(*(c.particles[:, :2] - image[:2]).T) < 0.1)
-                    & (np.abs(wrap_angle(c.particles[:, 2] - image[2])) < 0.1))
+            image = np.array(
+                [
+                    math.cos(a) * truth[0] - math.sin(a) * truth[1],
+                    math.sin(a) * truth[0] + math.cos(a) * truth[1],
+                    yaw + a,
+                ]
+            )
+            near = (np.hypot(*(c.particles[:, :2] - image[:2]).T) < 0.1) & (
+                np.abs(wrap_angle(c.particles[:, 2] - image[2])) < 0.1
+            )
             weights.append(float(w[near].sum()))
         headings.append(weights)
         if yaw == 0.0:

@@ -1,5 +1,6 @@
 """A lidar on a moving mount (THOR's head): interpolation, projection, floor removal, the
 mostly-floor skip in the scheduler."""
+
 from __future__ import annotations
 
 import math
@@ -92,13 +93,21 @@ def test_floor_returns_removed_by_their_height():
 
 
 def _scheduler(laser):
-    return sch.PredictorScheduler(FilterConfig(num_particles=5, min_travel_m=0.1), OdometryMotionConfig(),
-                                  "odom", "exact", odom_wait_scans=0, stamp_offset_s=0.0, laser_cfg=laser)
+    return sch.PredictorScheduler(
+        FilterConfig(num_particles=5, min_travel_m=0.1),
+        OdometryMotionConfig(),
+        "odom",
+        "exact",
+        odom_wait_scans=0,
+        stamp_offset_s=0.0,
+        laser_cfg=laser,
+    )
 
 
 def test_mostly_floor_scan_is_posed_from_odometry_and_counted():
-    laser = LaserConfig(extrinsic=LIDAR_ON_HEAD, min_height_m=0.25, max_height_m=2.5, min_kept_fraction=0.3,
-                        dynamic_frame="head")
+    laser = LaserConfig(
+        extrinsic=LIDAR_ON_HEAD, min_height_m=0.25, max_height_m=2.5, min_kept_fraction=0.3, dynamic_frame="head"
+    )
     s = _scheduler(laser)
     angles = np.radians(np.linspace(-135, 135, 1081))
     walls = np.full(1081, 3.0)
@@ -146,13 +155,18 @@ def test_tf_cdr_reader_reads_what_the_bag_writer_wrote():
     """The predictor reads /tf from the bytes (100 Hz): the same values as the message."""
     from pf_slam_nodes.io.bag import TYPESTORE, tf_static
     from pf_slam_nodes.ros.cdr import tf_transforms
+
     q = matrix_to_quat(rz(0.3) @ ry(0.2))
-    msg = tf_static(1_700_000_000_123_456_789, [("base_link", "head", (0.1, -0.2, HEAD_Z), q),
-                                                ("/odom", "base_link", (1.0, 2.0, 0.0), (0, 0, 0, 1))])
+    msg = tf_static(
+        1_700_000_000_123_456_789,
+        [("base_link", "head", (0.1, -0.2, HEAD_Z), q), ("/odom", "base_link", (1.0, 2.0, 0.0), (0, 0, 0, 1))],
+    )
     raw = bytes(TYPESTORE.serialize_cdr(msg, "tf2_msgs/msg/TFMessage"))
     out = tf_transforms(raw)
-    assert [(s, p, c) for s, p, c, _, _ in out] == [(1_700_000_000_123_456_789, "base_link", "head"),
-                                                    (1_700_000_000_123_456_789, "/odom", "base_link")]
+    assert [(s, p, c) for s, p, c, _, _ in out] == [
+        (1_700_000_000_123_456_789, "base_link", "head"),
+        (1_700_000_000_123_456_789, "/odom", "base_link"),
+    ]
     assert out[0][3] == (0.1, -0.2, HEAD_Z) and np.allclose(out[0][4], q)
     with pytest.raises(ValueError, match="truncated"):
         tf_transforms(raw[:-8])
@@ -162,8 +176,15 @@ def test_live_scan_waits_at_most_odom_wait_scans_for_its_head_sample():
     """Live (no replay to say the /tf stream ended): a scan whose head sample does not come is
     decided with the newest sample once odom_wait_scans scans wait behind it."""
     laser = LaserConfig(extrinsic=LIDAR_ON_HEAD, dynamic_frame="head")
-    s = sch.PredictorScheduler(FilterConfig(num_particles=5, min_travel_m=0.1), OdometryMotionConfig(),
-                               "odom", "exact", odom_wait_scans=3, stamp_offset_s=0.0, laser_cfg=laser)
+    s = sch.PredictorScheduler(
+        FilterConfig(num_particles=5, min_travel_m=0.1),
+        OdometryMotionConfig(),
+        "odom",
+        "exact",
+        odom_wait_scans=3,
+        stamp_offset_s=0.0,
+        laser_cfg=laser,
+    )
     angles = np.radians(np.linspace(-135, 135, 1081))
     out = s.add_mount(0, *head(0.3, 0.0))
     for k in range(4):

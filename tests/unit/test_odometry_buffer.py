@@ -1,4 +1,5 @@
 """Pairing odometry with scans (core/odometry.py), including the Intel log's bad timestamps."""
+
 import numpy as np
 import pytest
 
@@ -94,12 +95,12 @@ def test_bad_messages_in_a_row_are_bridged_once_a_good_one_comes(sync, run):
     nothing in the buffer blocks on a count), then get the interpolation across, each counted."""
     buf = OdometryBuffer(sync)
     stamps = list(range(0, 10 * (run + 20), 10))
-    bad = set(stamps[10:10 + run])
-    _line(buf, stamps[:10 + run], bad)
+    bad = set(stamps[10 : 10 + run])
+    _line(buf, stamps[: 10 + run], bad)
     for t in stamps[:10]:
         assert buf.lookup(t)[0] == t / 10.0
     assert buf.lookup(stamps[10]) is None  # the next good message has not arrived
-    _line(buf, stamps[10 + run:])
+    _line(buf, stamps[10 + run :])
     got = [buf.lookup(t) for t in stamps[10:]]
     np.testing.assert_allclose([p[0] for p in got], [t / 10.0 for t in stamps[10:]])  # a straight line
     assert buf.missing == run

@@ -1,5 +1,6 @@
 """Which parameter profile `pf-slam run BAG` uses without --params (profiles.py): the bag's
 converter metadata, else its sensors; --profile forces one; the printed line."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -14,15 +15,19 @@ ODOM = {"scan": "/scan", "odom": "/odom"}
 CAR = {"scan": "/scan", "encoders": "/encoders", "fog": "/fog"}
 
 
-@pytest.mark.parametrize("custom, name", [
-    ({"pf_slam.format": "kaist"}, "kaist"), ({"pf_slam.format": "carmen"}, "indoor"),
-    ({"pf_slam.format": "mines"}, "mines"),
-    # bags converted before pf_slam.format was written
-    ({"pf_slam.source": "kaist:urban08"}, "kaist"),
-    ({"pf_slam.source": "exp1.dat", "pf_slam.wheel_radius_m": "0.077", "pf_slam.half_axle_m": "0.165"}, "mines"),
-    ({"pf_slam.source": "intel.clf", "pf_slam.odom_source": "laser lines"}, "indoor"),
-    ({"pf_slam.sim": "indoor seed=0 duration_s=60"}, "sim_indoor"),
-])
+@pytest.mark.parametrize(
+    "custom, name",
+    [
+        ({"pf_slam.format": "kaist"}, "kaist"),
+        ({"pf_slam.format": "carmen"}, "indoor"),
+        ({"pf_slam.format": "mines"}, "mines"),
+        # bags converted before pf_slam.format was written
+        ({"pf_slam.source": "kaist:urban08"}, "kaist"),
+        ({"pf_slam.source": "exp1.dat", "pf_slam.wheel_radius_m": "0.077", "pf_slam.half_axle_m": "0.165"}, "mines"),
+        ({"pf_slam.source": "intel.clf", "pf_slam.odom_source": "laser lines"}, "indoor"),
+        ({"pf_slam.sim": "indoor seed=0 duration_s=60"}, "sim_indoor"),
+    ],
+)
 def test_metadata_names_the_profile(custom, name):
     # the sensors say otherwise (a planar lidar with odometry): the metadata wins
     p = choose_profile(custom, ODOM, planar=True)
@@ -50,8 +55,10 @@ def test_forced_profile():
 
 def test_printed_line():
     p = choose_profile({"pf_slam.format": "kaist"}, CAR, False)
-    assert p.line() == ("[pf-slam] profile: kaist (bag metadata pf_slam.format=kaist, written by pf-slam "
-                        "convert kaist); config/kaist.yaml")
+    assert p.line() == (
+        "[pf-slam] profile: kaist (bag metadata pf_slam.format=kaist, written by pf-slam "
+        "convert kaist); config/kaist.yaml"
+    )
     assert p.summary() == {"name": "kaist", "why": p.why, "file": str(profiles.CONFIG_DIR / "kaist.yaml")}
 
 

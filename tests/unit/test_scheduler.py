@@ -1,6 +1,7 @@
 """core/scheduler.py PredictorScheduler without ROS: the poses depend only on the data, not on
 how the streams interleave on arrival nor on how late the corrections come back (what makes
 one process and many, and the graph and the ROS-free loop, agree)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -20,8 +21,7 @@ def _drive(n_scans: int = 60):
     wheel = v * t_enc / S / (d / 2)
     encoders = [(int(t), np.array([w, w + 0.001 * k])) for k, (t, w) in enumerate(zip(t_enc, wheel))]
     t_gyro = np.arange(1, len(t_enc) * 10 + 10) * (S // 1000)
-    gyro = [(t_gyro[i:i + 10], np.full(len(t_gyro[i:i + 10]), yaw_rate / 1000))
-            for i in range(0, len(t_gyro), 10)]
+    gyro = [(t_gyro[i : i + 10], np.full(len(t_gyro[i : i + 10]), yaw_rate / 1000)) for i in range(0, len(t_gyro), 10)]
     scans = [int(t) for t in (np.arange(n_scans) * (S // 10) + S // 20)]
     return scans, encoders, gyro
 
@@ -40,9 +40,16 @@ def _events(order: str, scans, encoders, gyro):
 def _run(events, delay: int = 0, wheels=None, bad=()):
     """Feed the events; each correction is answered after `delay` more events. Returns the
     poses (stamp, pose) in publication order and the scheduler."""
-    s = sch.PredictorScheduler(cfg.FilterConfig(num_particles=5, min_travel_m=0.5), cfg.OdometryMotionConfig(),
-                               "encoders", "interpolate", wheels or cfg.WheelsConfig(left_diameter_m=0.5, right_diameter_m=0.5, base_m=0.6),
-                               gyro=True, odom_wait_scans=0, stamp_offset_s=0.0)
+    s = sch.PredictorScheduler(
+        cfg.FilterConfig(num_particles=5, min_travel_m=0.5),
+        cfg.OdometryMotionConfig(),
+        "encoders",
+        "interpolate",
+        wheels or cfg.WheelsConfig(left_diameter_m=0.5, right_diameter_m=0.5, base_m=0.6),
+        gyro=True,
+        odom_wait_scans=0,
+        stamp_offset_s=0.0,
+    )
     poses, pending, counts = [], [], {"scan": 0, "enc": 0, "gyro": 0}
     s.most_deferred = 0  # pass-throughs queued behind a correction in flight, at most
 
@@ -129,12 +136,23 @@ def test_bad_encoder_message_is_counted_and_keeps_its_place(drive):
 
 
 def test_wheels_config_validates_and_names_the_field():
-    assert cfg.WheelsConfig().to_dict() == {"left_diameter_m": 0.154, "right_diameter_m": 0.154, "base_m": 0.33,
-                                            "max_speed_mps": 50.0, "gyro_rest_bias": True, "rest_min_s": 0.5}
+    assert cfg.WheelsConfig().to_dict() == {
+        "left_diameter_m": 0.154,
+        "right_diameter_m": 0.154,
+        "base_m": 0.33,
+        "max_speed_mps": 50.0,
+        "gyro_rest_bias": True,
+        "rest_min_s": 0.5,
+    }
     assert cfg.WheelsConfig(max_speed_mps=float("inf")).max_speed_mps == float("inf")  # no jump check
-    for bad, name in [({"base_m": 0.0}, "base_m"), ({"left_diameter_m": -1.0}, "left_diameter_m"),
-                      ({"max_speed_mps": float("nan")}, "max_speed_mps"), ({"rest_min_s": 0}, "rest_min_s"),
-                      ({"gyro_rest_bias": 1}, "gyro_rest_bias"), ({"right_diameter_m": "x"}, "right_diameter_m")]:
+    for bad, name in [
+        ({"base_m": 0.0}, "base_m"),
+        ({"left_diameter_m": -1.0}, "left_diameter_m"),
+        ({"max_speed_mps": float("nan")}, "max_speed_mps"),
+        ({"rest_min_s": 0}, "rest_min_s"),
+        ({"gyro_rest_bias": 1}, "gyro_rest_bias"),
+        ({"right_diameter_m": "x"}, "right_diameter_m"),
+    ]:
         with pytest.raises(ValueError, match=name):
             cfg.WheelsConfig(**bad)
     with pytest.raises(ValueError, match="unknown"):

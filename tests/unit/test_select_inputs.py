@@ -1,10 +1,15 @@
 """Choosing the bag's topics for the graph's inputs (no rclpy, no bag files: bag_info's shape)."""
+
 import pytest
 
 from pf_slam_nodes.graph import RunError, params_topics, select_inputs, topic_remaps
 
-SCAN, ODOM, JS, IMG = ("sensor_msgs/msg/LaserScan", "nav_msgs/msg/Odometry", "sensor_msgs/msg/JointState",
-                       "sensor_msgs/msg/Image")
+SCAN, ODOM, JS, IMG = (
+    "sensor_msgs/msg/LaserScan",
+    "nav_msgs/msg/Odometry",
+    "sensor_msgs/msg/JointState",
+    "sensor_msgs/msg/Image",
+)
 
 
 def info(**topics):
@@ -17,12 +22,17 @@ def test_defaults_then_the_only_topic_of_a_type():
     assert got == {"scan": "/front/scan", "odom": "/wheel/odom"}  # odometry wins over a JointState
     got = select_inputs("b", info(lidar=SCAN, joint_states=JS, fog="geometry_msgs/msg/Vector3Stamped"))
     assert got == {"scan": "/lidar", "encoders": "/joint_states", "fog": "/fog"}
-    assert select_inputs("b", info(scan=SCAN, odom=ODOM, fog="pf_slam_interfaces/msg/FogBatch")) == \
-        {"scan": "/scan", "odom": "/odom"}  # a gyro only with encoders
+    assert select_inputs("b", info(scan=SCAN, odom=ODOM, fog="pf_slam_interfaces/msg/FogBatch")) == {
+        "scan": "/scan",
+        "odom": "/odom",
+    }  # a gyro only with encoders
     both = info(scan=SCAN, odom=ODOM, enc=JS, stereo__left__image_raw=IMG, stereo__right__image_raw=IMG)
     assert select_inputs("b", both, {"encoders": "/enc"}) == {
-        "scan": "/scan", "encoders": "/enc", "stereo_left": "/stereo/left/image_raw",
-        "stereo_right": "/stereo/right/image_raw"}
+        "scan": "/scan",
+        "encoders": "/enc",
+        "stereo_left": "/stereo/left/image_raw",
+        "stereo_right": "/stereo/right/image_raw",
+    }
 
 
 def test_requested_topics_and_errors_name_what_was_found():
@@ -51,9 +61,15 @@ def test_remaps_and_topics_from_a_parameter_file():
 
 def test_an_imu_is_the_gyro_of_wheel_encoders_only():
     IMU = "sensor_msgs/msg/Imu"
-    assert select_inputs("b", info(scan=SCAN, encoders=JS, imu__data=IMU)) == \
-        {"scan": "/scan", "encoders": "/encoders", "imu": "/imu/data"}
+    assert select_inputs("b", info(scan=SCAN, encoders=JS, imu__data=IMU)) == {
+        "scan": "/scan",
+        "encoders": "/encoders",
+        "imu": "/imu/data",
+    }
     assert select_inputs("b", info(scan=SCAN, odom=ODOM, imu__data=IMU)) == {"scan": "/scan", "odom": "/odom"}
-    assert select_inputs("b", info(scan=SCAN, encoders=JS, imu=IMU, fog="pf_slam_interfaces/msg/FogBatch")) == \
-        {"scan": "/scan", "encoders": "/encoders", "fog": "/fog"}  # the FOG, when there is one
+    assert select_inputs("b", info(scan=SCAN, encoders=JS, imu=IMU, fog="pf_slam_interfaces/msg/FogBatch")) == {
+        "scan": "/scan",
+        "encoders": "/encoders",
+        "fog": "/fog",
+    }  # the FOG, when there is one
     assert topic_remaps({"scan": "/scan", "imu": "/imu/data"}) == {"imu": "/imu/data"}

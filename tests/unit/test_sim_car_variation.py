@@ -1,4 +1,5 @@
 """`pf-slam simulate --world N`: other layouts and error levels than the default drives."""
+
 import numpy as np
 import pytest
 import yaml

@@ -1,4 +1,5 @@
 """The seeded indoor simulator: geometry, determinism, and sensor content against ground truth."""
+
 from __future__ import annotations
 
 import math
@@ -7,35 +8,43 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pf_slam_nodes.core.geometry import quat_to_yaw
 from pf_slam_nodes.io.bag import BagError, bag_info, deserialize, read_bag, stamp_ns_of
 from pf_slam_nodes.io.mapfile import read_map
-from pf_slam_nodes.core.geometry import quat_to_yaw
 from pf_slam_nodes.io.trajectory import read_trajectory
 from pf_slam_tools.sim import indoor
 from pf_slam_tools.sim.indoor import (
-    EPOCH_NS, N_BEAMS, RANGE_MAX_M, beam_angles, distance_to_segments, office_world,
-    plan_drive, ray_cast, simulate_indoor)
+    EPOCH_NS,
+    N_BEAMS,
+    RANGE_MAX_M,
+    beam_angles,
+    distance_to_segments,
+    office_world,
+    plan_drive,
+    ray_cast,
+    simulate_indoor,
+)
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:
     return np.arctan2(np.sin(a), np.cos(a))
 
 
-@pytest.fixture(scope='module')
+@pytest.fixture(scope="module")
 def sample(tmp_path_factory: pytest.TempPathFactory) -> indoor.SimResult:
     """The default sample (seed 0, 60 s), written once for the module."""
-    return simulate_indoor(tmp_path_factory.mktemp('sim') / 'out', seed=0)
+    return simulate_indoor(tmp_path_factory.mktemp("sim") / "out", seed=0)
 
 
-@pytest.fixture(scope='module')
+@pytest.fixture(scope="module")
 def decoded(sample: indoor.SimResult) -> dict:
     scans, odom, tf = [], [], []
     for topic, msgtype, stamp, raw in read_bag(sample.bag_path):
         msg = deserialize(raw, msgtype)
-        head = msg.transforms[0] if topic == '/tf_static' else msg
-        assert stamp_ns_of(head) == stamp, f'{topic}: header stamp differs from record time'
-        {'/scan': scans, '/odom': odom, '/tf_static': tf}[topic].append(msg)
-    return {'scans': scans, 'odom': odom, 'tf': tf}
+        head = msg.transforms[0] if topic == "/tf_static" else msg
+        assert stamp_ns_of(head) == stamp, f"{topic}: header stamp differs from record time"
+        {"/scan": scans, "/odom": odom, "/tf_static": tf}[topic].append(msg)
+    return {"scans": scans, "odom": odom, "tf": tf}
 
 
 def _odom_pose(msg) -> tuple[int, np.ndarray]:
@@ -57,8 +66,7 @@ def test_ray_cast_hand_computed_wall() -> None:
     assert r[3] == np.inf
     # Rotated sensor: at (5, 3) facing -y (theta = -pi/2), the wall y = 0 is 3 m ahead.
     floor = np.array([[0.0, 0.0, 10.0, 0.0]])
-    assert ray_cast(np.array([5.0, 3.0, -0.5 * math.pi]), np.zeros(1), floor, 20.0)[0] == \
-        pytest.approx(3.0, abs=1e-12)
+    assert ray_cast(np.array([5.0, 3.0, -0.5 * math.pi]), np.zeros(1), floor, 20.0)[0] == pytest.approx(3.0, abs=1e-12)
     # Beyond range_max -> no return; the nearest of two walls wins.
     assert ray_cast(np.array([1.0, 0.0, 0.0]), np.zeros(1), wall, 3.9)[0] == np.inf
     two = np.array([[5.0, -1.0, 5.0, 1.0], [2.5, -1.0, 2.5, 1.0]])
@@ -80,8 +88,7 @@ def test_ray_cast_in_the_office_world() -> None:
     poses = np.array([[0.0, 0.0, 0.0], [2.0, -3.0, 1.0], [-1.5, -4.0, -2.0]])
     batch = ray_cast(poses, beam_angles(), world.segments, RANGE_MAX_M, chunk=2)
     for k, p in enumerate(poses):
-        np.testing.assert_array_equal(batch[k], ray_cast(p, beam_angles(), world.segments,
-                                                         RANGE_MAX_M))
+        np.testing.assert_array_equal(batch[k], ray_cast(p, beam_angles(), world.segments, RANGE_MAX_M))
 
 
 def test_drive_keeps_clear_of_walls_and_closes_the_loop() -> None:
@@ -90,12 +97,12 @@ def test_drive_keeps_clear_of_walls_and_closes_the_loop() -> None:
         t, poses = plan_drive(60.0, np.random.default_rng(seed))
         assert len(t) == 6000 and np.array_equal(poses[0], np.zeros(3))
         clearance = distance_to_segments(poses[:, :2], world.segments)
-        assert clearance.min() > 0.4, f'seed {seed}: path within {clearance.min():.2f} m of a wall'
-        step = np.hypot(*np.diff(poses[:, :2], axis=0).T) * 100.0    # m/s at 100 Hz
+        assert clearance.min() > 0.4, f"seed {seed}: path within {clearance.min():.2f} m of a wall"
+        step = np.hypot(*np.diff(poses[:, :2], axis=0).T) * 100.0  # m/s at 100 Hz
         assert 0.45 < np.percentile(step, 90) < 0.6
-        assert (step < 1e-3).sum() >= 200, 'expected a stop of >= 2 s'
+        assert (step < 1e-3).sum() >= 200, "expected a stop of >= 2 s"
         turn = np.abs(_wrap(np.diff(poses[:, 2]))) * 100.0
-        assert turn.max() < 0.8, 'turn rate above 0.8 rad/s'
+        assert turn.max() < 0.8, "turn rate above 0.8 rad/s"
         # Returns to the start region after the lap (loop closure).
         later = np.hypot(*poses[3000:, :2].T)
         assert later.min() < 0.2
@@ -132,9 +139,9 @@ def _bag_bytes(bag: Path) -> dict[str, bytes]:
 
 
 def test_same_seed_gives_identical_files_and_other_seed_differs(tmp_path: Path) -> None:
-    a = simulate_indoor(tmp_path / 'a', seed=3, duration_s=5.0)
-    b = simulate_indoor(tmp_path / 'b', seed=3, duration_s=5.0)
-    c = simulate_indoor(tmp_path / 'c', seed=4, duration_s=5.0)
+    a = simulate_indoor(tmp_path / "a", seed=3, duration_s=5.0)
+    b = simulate_indoor(tmp_path / "b", seed=3, duration_s=5.0)
+    c = simulate_indoor(tmp_path / "c", seed=4, duration_s=5.0)
     assert _bag_bytes(a.bag_path) == _bag_bytes(b.bag_path)
     assert a.ground_truth_path.read_bytes() == b.ground_truth_path.read_bytes()
     assert _bag_bytes(a.bag_path) != _bag_bytes(c.bag_path)
@@ -144,24 +151,24 @@ def test_same_seed_gives_identical_files_and_other_seed_differs(tmp_path: Path) 
 
 def test_existing_bag_is_refused_unless_overwrite(tmp_path: Path) -> None:
     simulate_indoor(tmp_path, seed=0, duration_s=1.0)
-    with pytest.raises(BagError, match='already exists'):
+    with pytest.raises(BagError, match="already exists"):
         simulate_indoor(tmp_path, seed=0, duration_s=1.0)
     res = simulate_indoor(tmp_path, seed=1, duration_s=2.0, overwrite=True)
-    assert bag_info(res.bag_path)['topics']['/scan'] == ('sensor_msgs/msg/LaserScan', 20)
+    assert bag_info(res.bag_path)["topics"]["/scan"] == ("sensor_msgs/msg/LaserScan", 20)
 
 
-@pytest.mark.parametrize('kwargs', [{'duration_s': 0.0}, {'odom_rate_hz': 30}])
+@pytest.mark.parametrize("kwargs", [{"duration_s": 0.0}, {"odom_rate_hz": 30}])
 def test_bad_arguments_fail_fast(tmp_path: Path, kwargs: dict) -> None:
     with pytest.raises(ValueError, match=next(iter(kwargs))):
         simulate_indoor(tmp_path, **kwargs)
-    assert not (tmp_path / 'sample_indoor').exists()
+    assert not (tmp_path / "sample_indoor").exists()
 
 
 def test_main_writes_the_sample(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
-    assert indoor.main(['--out', str(tmp_path), '--seed', '2', '--duration', '3']) == 0
-    assert '30 scans' in capsys.readouterr().out
-    assert bag_info(tmp_path / 'sample_indoor')['topics']['/odom'][1] == 60
-    assert indoor.main(['--out', str(tmp_path), '--duration', '3']) == 2     # exists
+    assert indoor.main(["--out", str(tmp_path), "--seed", "2", "--duration", "3"]) == 0
+    assert "30 scans" in capsys.readouterr().out
+    assert bag_info(tmp_path / "sample_indoor")["topics"]["/odom"][1] == 60
+    assert indoor.main(["--out", str(tmp_path), "--duration", "3"]) == 2  # exists
 
 
 # ------------------------------------------------------------------------ the default sample
@@ -169,35 +176,37 @@ def test_main_writes_the_sample(tmp_path: Path, capsys: pytest.CaptureFixture) -
 
 def test_sample_counts_sizes_and_stamps(sample: indoor.SimResult, decoded: dict) -> None:
     info = bag_info(sample.bag_path)
-    assert info['storage'] == 'mcap'
-    assert info['start_ns'] == EPOCH_NS
-    assert info['topics'] == {'/scan': ('sensor_msgs/msg/LaserScan', 600),
-                              '/odom': ('nav_msgs/msg/Odometry', 1200),
-                              '/tf_static': ('tf2_msgs/msg/TFMessage', 1)}
+    assert info["storage"] == "mcap"
+    assert info["start_ns"] == EPOCH_NS
+    assert info["topics"] == {
+        "/scan": ("sensor_msgs/msg/LaserScan", 600),
+        "/odom": ("nav_msgs/msg/Odometry", 1200),
+        "/tf_static": ("tf2_msgs/msg/TFMessage", 1),
+    }
     assert (sample.n_scans, sample.n_odom, sample.duration_s) == (600, 1200, 60.0)
     assert sum(f.stat().st_size for f in sample.bag_path.iterdir()) <= 2_000_000
     stamps, poses = read_trajectory(sample.ground_truth_path)
-    assert len(stamps) == len(decoded['scans']) == sample.n_scans
-    scan_ns = np.array([stamp_ns_of(m) for m in decoded['scans']])
+    assert len(stamps) == len(decoded["scans"]) == sample.n_scans
+    scan_ns = np.array([stamp_ns_of(m) for m in decoded["scans"]])
     np.testing.assert_array_equal(scan_ns, EPOCH_NS + np.arange(600) * 100_000_000)
     np.testing.assert_allclose(stamps, scan_ns / 1e9, atol=1e-6)
-    odom_ns = {stamp_ns_of(m) for m in decoded['odom']}
-    assert set(scan_ns.tolist()) <= odom_ns, 'every scan stamp has an odometry message'
-    tf = decoded['tf'][0].transforms[0]
-    assert (tf.header.frame_id, tf.child_frame_id) == ('base_link', 'laser')
+    odom_ns = {stamp_ns_of(m) for m in decoded["odom"]}
+    assert set(scan_ns.tolist()) <= odom_ns, "every scan stamp has an odometry message"
+    tf = decoded["tf"][0].transforms[0]
+    assert (tf.header.frame_id, tf.child_frame_id) == ("base_link", "laser")
     assert tf.transform.rotation.w == 1.0 and tf.transform.translation.x == 0.0
-    scan = decoded['scans'][0]
-    assert scan.header.frame_id == 'laser' and len(scan.ranges) == N_BEAMS
+    scan = decoded["scans"][0]
+    assert scan.header.frame_id == "laser" and len(scan.ranges) == N_BEAMS
     assert scan.angle_min == pytest.approx(-math.pi / 2)
     assert scan.angle_increment == pytest.approx(math.pi / 180)
     assert scan.angle_max == pytest.approx(math.pi / 2)
     assert scan.range_max == RANGE_MAX_M
-    odom = decoded['odom'][0]
-    assert (odom.header.frame_id, odom.child_frame_id) == ('odom', 'base_link')
+    odom = decoded["odom"][0]
+    assert (odom.header.frame_id, odom.child_frame_id) == ("odom", "base_link")
 
 
 def test_scan_noise_and_dropouts(decoded: dict) -> None:
-    ranges = np.stack([np.asarray(m.ranges, dtype=np.float64) for m in decoded['scans']])
+    ranges = np.stack([np.asarray(m.ranges, dtype=np.float64) for m in decoded["scans"]])
     assert not np.isnan(ranges).any() and np.all(ranges[np.isfinite(ranges)] <= RANGE_MAX_M)
     missing = ~np.isfinite(ranges)
     assert np.all(ranges[missing] == np.inf)
@@ -205,13 +214,12 @@ def test_scan_noise_and_dropouts(decoded: dict) -> None:
     assert 0.005 < missing.mean() < 0.02
 
 
-def test_ground_truth_reprojects_scans_onto_the_walls(sample: indoor.SimResult,
-                                                      decoded: dict) -> None:
+def test_ground_truth_reprojects_scans_onto_the_walls(sample: indoor.SimResult, decoded: dict) -> None:
     _, gt = read_trajectory(sample.ground_truth_path)
     world = office_world()
     a = beam_angles()
     dists = []
-    for pose, msg in zip(gt[::10], decoded['scans'][::10]):
+    for pose, msg in zip(gt[::10], decoded["scans"][::10]):
         r = np.asarray(msg.ranges, dtype=np.float64)
         ok = np.isfinite(r)
         th = pose[2] + a[ok]
@@ -222,15 +230,14 @@ def test_ground_truth_reprojects_scans_onto_the_walls(sample: indoor.SimResult,
     assert np.percentile(d, 99) < 0.05
 
 
-def test_dead_reckoning_drifts_but_increments_stay_close(sample: indoor.SimResult,
-                                                         decoded: dict) -> None:
+def test_dead_reckoning_drifts_but_increments_stay_close(sample: indoor.SimResult, decoded: dict) -> None:
     _, gt = read_trajectory(sample.ground_truth_path)
-    odom = dict(_odom_pose(m) for m in decoded['odom'])
-    scan_ns = [stamp_ns_of(m) for m in decoded['scans']]
+    odom = dict(_odom_pose(m) for m in decoded["odom"])
+    scan_ns = [stamp_ns_of(m) for m in decoded["scans"]]
     od = np.stack([odom[s] for s in scan_ns])
     np.testing.assert_allclose(od[0], gt[0], atol=1e-12)
     err = np.hypot(*(od[:, :2] - gt[:, :2]).T)
-    assert err[-1] > 0.5, f'dead reckoning should drift visibly, ended {err[-1]:.2f} m off'
+    assert err[-1] > 0.5, f"dead reckoning should drift visibly, ended {err[-1]:.2f} m off"
     assert err[-1] == pytest.approx(sample.odom_drift_m, abs=1e-5)
     assert err.max() < 3.0
 
@@ -238,11 +245,11 @@ def test_dead_reckoning_drifts_but_increments_stay_close(sample: indoor.SimResul
     def increments(p: np.ndarray) -> np.ndarray:
         d = p[1:, :2] - p[:-1, :2]
         c, s = np.cos(p[:-1, 2]), np.sin(p[:-1, 2])
-        return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1],
-                         _wrap(p[1:, 2] - p[:-1, 2])], axis=1)
+        return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], _wrap(p[1:, 2] - p[:-1, 2])], axis=1)
+
     diff = np.abs(increments(od) - increments(gt))
-    assert diff[:, :2].max() < 0.01      # m per 0.1 s
-    assert diff[:, 2].max() < 0.01       # rad per 0.1 s
+    assert diff[:, :2].max() < 0.01  # m per 0.1 s
+    assert diff[:, 2].max() < 0.01  # rad per 0.1 s
     # The drive covers corridor and rooms: ~25-32 m, net turning over a full lap.
     assert 25.0 < sample.path_length_m < 32.0
     assert np.sum(_wrap(np.diff(gt[:, 2]))) < -2 * math.pi + 0.5

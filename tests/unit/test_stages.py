@@ -1,4 +1,5 @@
 """Stages as the graph runs them: map patches keep the correlator's field equal to a full rebuild."""
+
 import numpy as np
 
 from pf_slam_nodes.core import config as cfg
@@ -18,7 +19,12 @@ def _box_scan(pose, n=181, fov=np.pi):
 
 
 def test_patches_reproduce_the_mappers_obstacles():
-    f, g, c, r = cfg.FilterConfig(), cfg.GridConfig(size_x_m=10, size_y_m=10), cfg.CorrelationConfig(), cfg.ResampleConfig()
+    f, g, c, r = (
+        cfg.FilterConfig(),
+        cfg.GridConfig(size_x_m=10, size_y_m=10),
+        cfg.CorrelationConfig(),
+        cfg.ResampleConfig(),
+    )
     mapper, corr = MappingStage(f, g), CorrectionStage(f, g, c, r)
     for pose in ([0, 0, 0], [0.3, 0.1, 0.2], [-0.5, 0.2, 1.5]):
         ranges, ang = _box_scan(np.array(pose, float))
@@ -26,8 +32,7 @@ def test_patches_reproduce_the_mappers_obstacles():
         corr.apply_patch(mapper.integrate(np.array(pose, float), ranges, ang, 0.0, 10.0))
     full = mapper.grid.occupancy() >= c.occupied_threshold
     np.testing.assert_array_equal(corr.field.obstacles, full)
-    rebuilt = GridLikelihoodField(mapper.grid.height, mapper.grid.width, mapper.grid.resolution,
-                                  mapper.grid.origin, c)
+    rebuilt = GridLikelihoodField(mapper.grid.height, mapper.grid.width, mapper.grid.resolution, mapper.grid.origin, c)
     rebuilt.update_from_occupancy(mapper.grid.occupancy())
     np.testing.assert_array_equal(corr.field.log_likelihood, rebuilt.log_likelihood)
 
@@ -44,7 +49,12 @@ def test_prediction_gate_and_first_scan():
 
 
 def test_correction_recovers_pose_offset_and_keeps_n():
-    f, g, c, r = cfg.FilterConfig(num_particles=10), cfg.GridConfig(size_x_m=10, size_y_m=10), cfg.CorrelationConfig(), cfg.ResampleConfig()
+    f, g, c, r = (
+        cfg.FilterConfig(num_particles=10),
+        cfg.GridConfig(size_x_m=10, size_y_m=10),
+        cfg.CorrelationConfig(),
+        cfg.ResampleConfig(),
+    )
     mapper, corr = MappingStage(f, g), CorrectionStage(f, g, c, r)
     true = np.array([0.2, -0.1, 0.1])
     ranges, ang = _box_scan(true, n=360, fov=2 * np.pi * 359 / 360)

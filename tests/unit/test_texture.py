@@ -1,5 +1,6 @@
 """Texture map core: stereo geometry, ground plane, accumulator, rendering; the real KAIST pair
 (road plane height, disparity density) and a simulated drive (colour error vs the true floor)."""
+
 from __future__ import annotations
 
 import math
@@ -10,11 +11,21 @@ import pytest
 
 cv2 = pytest.importorskip("cv2")
 
-from pf_slam_nodes.core.texture import (  # noqa: E402
-    StereoRig, StereoTexturer, TextureConfig, TextureMap, colour_error, debayer,
-    fit_ground_plane, interpolate_poses, measure_stereo_pair, north_up_bgr, overlay_occupancy,
-    road_region_mask)
 from pf_slam_nodes.core.geometry import nearest_rotation, rpy_to_matrix  # noqa: E402
+from pf_slam_nodes.core.texture import (  # noqa: E402
+    StereoRig,
+    StereoTexturer,
+    TextureConfig,
+    TextureMap,
+    colour_error,
+    debayer,
+    fit_ground_plane,
+    interpolate_poses,
+    measure_stereo_pair,
+    north_up_bgr,
+    overlay_occupancy,
+    road_region_mask,
+)
 from pf_slam_nodes.io.calib import read_stereo_rig  # noqa: E402
 from pf_slam_nodes.io.texture_files import read_floor_texture  # noqa: E402
 
@@ -70,8 +81,14 @@ def render(pose: np.ndarray, tex: np.ndarray, right: bool = False) -> np.ndarray
         t = np.where(d[..., 2] < -1e-9, -c[2] / d[..., 2], np.nan)
     mx = ((c[0] + t * d[..., 0] - TEX_ORIGIN[0]) / TEX_RES - 0.5).astype(np.float32)
     my = ((c[1] + t * d[..., 1] - TEX_ORIGIN[1]) / TEX_RES - 0.5).astype(np.float32)
-    img = cv2.remap(tex, np.nan_to_num(mx, nan=-10), np.nan_to_num(my, nan=-10), cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_CONSTANT, borderValue=(60, 70, 60))
+    img = cv2.remap(
+        tex,
+        np.nan_to_num(mx, nan=-10),
+        np.nan_to_num(my, nan=-10),
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=(60, 70, 60),
+    )
     img[np.isnan(t)] = (200, 210, 230)  # sky
     return img
 
@@ -100,15 +117,15 @@ def test_point_grid_round_trip_on_exact_disparity():
     v = tx.first_row + k * np.arange(h) + 0.5 * (k - 1)
     u = k * np.arange(w) + 0.5 * (k - 1)
     uu, vv = np.meshgrid(u, v)
-    ray_v = rig.pixel_rays(uu.ravel(), vv.ravel()) @ R_VS.T     # vehicle-frame directions
-    s = -T_VS[2] / ray_v[:, 2]                                   # to z = 0
+    ray_v = rig.pixel_rays(uu.ravel(), vv.ravel()) @ R_VS.T  # vehicle-frame directions
+    s = -T_VS[2] / ray_v[:, 2]  # to z = 0
     ground = T_VS + ray_v * s[:, None]
-    z_cam = s                                                    # camera depth = ray scale (ray z = 1)
+    z_cam = s  # camera depth = ray scale (ray z = 1)
     disp = np.where(s > 0, F * B / z_cam, np.nan).reshape(h, w).astype(np.float32)
     g = tx.point_grid(disp, rectified_here=False).reshape(-1, 3)
     ok = np.isfinite(g[:, 2]) & (s < 60)
     assert ok.sum() > 0.8 * ok.size
-    assert np.abs(g[ok] - ground[ok]).max() < 1e-3   # float32 arithmetic, depths up to 60 m
+    assert np.abs(g[ok] - ground[ok]).max() < 1e-3  # float32 arithmetic, depths up to 60 m
     assert np.abs(g[ok, 2]).max() < 1e-3
 
 
@@ -157,7 +174,7 @@ def test_texture_map_running_mean_and_tiles():
     assert tm.add(xy, [[10, 20, 30], [20, 40, 60], [255, 255, 255]]) == 3
     assert tm.add([[0.01, 0.09]], [[60, 60, 60]]) == 1
     mean, count = tm.tiles[(0, 0)]
-    np.testing.assert_allclose(mean[0, 0], [30, 40, 50])      # (10+20+60)/3, ...
+    np.testing.assert_allclose(mean[0, 0], [30, 40, 50])  # (10+20+60)/3, ...
     assert count[0, 0] == 3 and tm.cell_count() == 2
     # a scattered batch (many tiles): grouped; beyond max_tiles: dropped and counted
     far = np.array([[100.0 * k, -50.0 * k] for k in range(1, 11)])
@@ -170,15 +187,15 @@ def test_render_geometry_fine_coarse_and_layout():
     tm = TextureMap(cell_m=0.1, tile_cells=8, anchor_xy=(-1.0, -1.0))
     # one red sample at (0.25, 0.72), one blue one at (0.35, 0.78): different 0.1 cells, same 0.2
     tm.add([[0.25, 0.72], [0.35, 0.78]], [[250, 0, 0], [0, 0, 250]])
-    rgb, cov = tm.render((-1.0, -1.0), 0.1, 30, 20)           # aligned, same resolution
+    rgb, cov = tm.render((-1.0, -1.0), 0.1, 30, 20)  # aligned, same resolution
     assert cov.sum() == 2
-    np.testing.assert_array_equal(rgb[17, 12], [250, 1, 1])   # row = (0.72+1)/0.1, col = (0.25+1)/0.1
+    np.testing.assert_array_equal(rgb[17, 12], [250, 1, 1])  # row = (0.72+1)/0.1, col = (0.25+1)/0.1
     np.testing.assert_array_equal(rgb[17, 13], [1, 1, 250])
     assert not rgb[~cov].any()
-    rgb2, cov2 = tm.render((-1.0, -1.0), 0.2, 15, 10)          # coarse: sample-weighted mean
+    rgb2, cov2 = tm.render((-1.0, -1.0), 0.2, 15, 10)  # coarse: sample-weighted mean
     assert cov2.sum() == 1 and cov2[8, 6]
     np.testing.assert_array_equal(rgb2[8, 6], [125, 1, 125])
-    rgb3, cov3 = tm.render((0.2, 0.7), 0.05, 4, 2)             # fine: 2 x 2 output per cell
+    rgb3, cov3 = tm.render((0.2, 0.7), 0.05, 4, 2)  # fine: 2 x 2 output per cell
     assert cov3.all() and (rgb3[:, :2, 0] == 250).all() and (rgb3[:, 2:, 2] == 250).all()
     # OccupancyGrid layout -> north-up BGR for a PNG; overlay marks occupied cells red
     bgr = north_up_bgr(rgb)
@@ -216,12 +233,14 @@ def test_synthetic_flat_world_texture_and_plane():
     rows = np.arange(gt.shape[0])
     y = TEX_ORIGIN[1] + (rows + 0.5) * 0.1
     band = (y > -2.6) & (y < -1.0)
-    cols = np.flatnonzero((TEX_ORIGIN[0] + (np.arange(gt.shape[1]) + 0.5) * 0.1 > 7.0)
-                          & (TEX_ORIGIN[0] + (np.arange(gt.shape[1]) + 0.5) * 0.1 < 21.0))
+    cols = np.flatnonzero(
+        (TEX_ORIGIN[0] + (np.arange(gt.shape[1]) + 0.5) * 0.1 > 7.0)
+        & (TEX_ORIGIN[0] + (np.arange(gt.shape[1]) + 0.5) * 0.1 < 21.0)
+    )
     lum = rgb[band][:, cols].astype(float).mean(axis=2)
-    assert cov[band][:, cols].any(axis=0).all()                # continuous
+    assert cov[band][:, cols].any(axis=0).all()  # continuous
     peak_y = y[band][np.argmax(lum, axis=0)]
-    assert np.abs(peak_y - (-1.8)).max() <= 0.1                 # straight, in place (one cell)
+    assert np.abs(peak_y - (-1.8)).max() <= 0.1  # straight, in place (one cell)
 
 
 # -------------------------------------------------------------------------------- real pair
@@ -255,11 +274,13 @@ def test_road_region_is_below_the_horizon_in_the_lane():
     rig = synthetic_rig()
     m = road_region_mask(rig, rectified_here=False)
     rows, cols = np.nonzero(m)
+
     # 5..15 m ahead of the camera on the ground: the rows those points project to (the camera
     # looks 0.88 deg down: ~12 px above the level-camera rows cy + f h / z)
     def row(ahead: float) -> float:
         q = R_VS.T @ (np.array([T_VS[0] + ahead, T_VS[1], 0.0]) - T_VS)
         return CY + F * q[1] / q[2]
+
     assert abs(rows.min() - row(15.0)) < 2 and abs(rows.max() - row(5.0)) < 2
     assert abs(row(15.0) - (CY + F * T_VS[2] / 15.0) + 12) < 1
     assert abs(np.median(cols) - CX) < 30

@@ -1,4 +1,5 @@
 """The RGB-D (depth mode) floor texturer on a synthetic Kinect v2 view of a coloured floor."""
+
 from __future__ import annotations
 
 import math
@@ -27,8 +28,9 @@ def rz(a):
 
 def floor_colour(x, y):
     """The true floor colour at world (x, y): smooth stripes (0..255)."""
-    return np.stack([128 + 100 * np.sin(1.3 * x), 128 + 100 * np.cos(0.9 * y),
-                     80 + 60 * np.sin(0.7 * (x + y))], axis=-1)
+    return np.stack(
+        [128 + 100 * np.sin(1.3 * x), 128 + 100 * np.cos(0.9 * y), 80 + 60 * np.sin(0.7 * (x + y))], axis=-1
+    )
 
 
 def render_rgbd(base_from_rgb, pose, floor_z=0.0, rgb_size=(960, 540)):

@@ -1,4 +1,5 @@
 """pf_slam_nodes: ament_python package (colcon) that also installs with plain pip."""
+
 from glob import glob
 
 from setuptools import find_packages, setup
@@ -25,7 +26,6 @@ setup(
     license="Apache-2.0",
     python_requires=">=3.10",
     entry_points={
-        "console_scripts": ["pf-slam = pf_slam_nodes.cli:main"]
-        + [f"{n} = {PACKAGE}.nodes.{n}:main" for n in NODES],
+        "console_scripts": ["pf-slam = pf_slam_nodes.cli:main"] + [f"{n} = {PACKAGE}.nodes.{n}:main" for n in NODES],
     },
 )

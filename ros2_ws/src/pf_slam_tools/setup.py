@@ -1,4 +1,5 @@
 """pf_slam_tools: simulators and benchmarks for pf_slam (development package, plain pip)."""
+
 from setuptools import find_packages, setup
 
 setup(

@@ -21,6 +21,7 @@ remapped; bag_replay publishes the bag's own names). texture:=true adds the ster
 map:=/path/map.yaml localizes on that saved map instead of building one (mode localization).
 The pip-only install has no `launch` package; use `pf-slam run` there (same nodes, same files).
 """
+
 import os
 
 from ament_index_python.packages import get_package_share_directory
@@ -40,6 +41,7 @@ def _parameter_files(context):
     params_file = LaunchConfiguration("params_file").perform(context)
     profile = LaunchConfiguration("profile").perform(context) or "auto"
     from pf_slam_nodes import profiles
+
     if params_file and profile == "auto":
         files, line = [], f"[pf-slam] profile: none (params_file {params_file} is the whole tuning)"
     elif not bag and profile == "auto":
@@ -52,8 +54,9 @@ def _parameter_files(context):
         except Exception as e:  # an unreadable bag: the indoor profile (documented above)
             if profile not in ("auto", ""):
                 raise
-            prof = profiles.Profile("indoor", f"the bag could not be read ({e}): indoor by default",
-                                    profiles.profile_file("indoor"))
+            prof = profiles.Profile(
+                "indoor", f"the bag could not be read ({e}): indoor by default", profiles.profile_file("indoor")
+            )
         path = os.path.join(share, "config", prof.file.name) if prof.file else None
         files = [path] if path else []
         line = prof.line()
@@ -62,45 +65,92 @@ def _parameter_files(context):
 
 def _nodes(context):
     from pf_slam_nodes.launch_plan import graph_nodes
+
     arg = LaunchConfiguration
     files, line = _parameter_files(context)
-    remaps = [("scan", arg("scan_topic")), ("odom", arg("odom_topic")), ("encoders", arg("encoders_topic")),
-              ("fog", arg("fog_topic")), ("imu", arg("imu_topic"))]
-    plan = graph_nodes(**{k: arg(k).perform(context) for k in
-                          ("bag", "use_sim_time", "texture", "odometry_source", "publish_sensor_tf", "scan_topic",
-                           "map", "sensor_qos")})
+    remaps = [
+        ("scan", arg("scan_topic")),
+        ("odom", arg("odom_topic")),
+        ("encoders", arg("encoders_topic")),
+        ("fog", arg("fog_topic")),
+        ("imu", arg("imu_topic")),
+    ]
+    plan = graph_nodes(
+        **{
+            k: arg(k).perform(context)
+            for k in (
+                "bag",
+                "use_sim_time",
+                "texture",
+                "odometry_source",
+                "publish_sensor_tf",
+                "scan_topic",
+                "map",
+                "sensor_qos",
+            )
+        }
+    )
     return [LogInfo(msg=line)] + [
-        Node(package="pf_slam_nodes", executable=name, name=name, output="screen",
-             parameters=files + [extra], remappings=remaps)
-        for name, extra in plan.items()]
+        Node(
+            package="pf_slam_nodes",
+            executable=name,
+            name=name,
+            output="screen",
+            parameters=files + [extra],
+            remappings=remaps,
+        )
+        for name, extra in plan.items()
+    ]
 
 
 def generate_launch_description():
-    return LaunchDescription([
-        DeclareLaunchArgument("bag", default_value="",
-                              description="rosbag2 to replay (mcap or sqlite3); empty: live topics"),
-        DeclareLaunchArgument("profile", default_value="auto",
-                              description="auto (from the bag; indoor if it cannot be read), indoor, kaist, "
-                                          "mines, sim_indoor or none"),
-        DeclareLaunchArgument("params_file", default_value="",
-                              description="ROS 2 parameter YAML; the whole tuning unless profile:=NAME"),
-        DeclareLaunchArgument("use_sim_time", default_value="auto",
-                              description="auto (follow /clock once published), true or false"),
-        DeclareLaunchArgument("odometry_source", default_value="",
-                              description="odom, encoders or tf (odom -> base_link on /tf); empty: the parameters'"),
-        DeclareLaunchArgument("publish_sensor_tf", default_value="auto",
-                              description="mapper: base_link -> lidar on /tf_static from the parameters; auto: "
-                                          "only with a bag (a robot's TF tree has it)"),
-        DeclareLaunchArgument("texture", default_value="false", description="run the stereo texture node"),
-        DeclareLaunchArgument("sensor_qos", default_value="",
-                              description="reliable or best_effort (drivers publishing with the sensor-data QoS); "
-                                          "empty: the parameters'"),
-        DeclareLaunchArgument("map", default_value="",
-                              description="localization only: track the pose on this saved map (map_server .yaml)"),
-        DeclareLaunchArgument("scan_topic", default_value="/scan", description="sensor_msgs/LaserScan"),
-        DeclareLaunchArgument("odom_topic", default_value="/odom", description="nav_msgs/Odometry"),
-        DeclareLaunchArgument("encoders_topic", default_value="/encoders", description="sensor_msgs/JointState"),
-        DeclareLaunchArgument("fog_topic", default_value="/fog", description="FogBatch or Vector3Stamped"),
-        DeclareLaunchArgument("imu_topic", default_value="/imu", description="sensor_msgs/Imu (fog_format: imu)"),
-        OpaqueFunction(function=_nodes),
-    ])
+    return LaunchDescription(
+        [
+            DeclareLaunchArgument(
+                "bag", default_value="", description="rosbag2 to replay (mcap or sqlite3); empty: live topics"
+            ),
+            DeclareLaunchArgument(
+                "profile",
+                default_value="auto",
+                description="auto (from the bag; indoor if it cannot be read), indoor, kaist, "
+                "mines, sim_indoor or none",
+            ),
+            DeclareLaunchArgument(
+                "params_file",
+                default_value="",
+                description="ROS 2 parameter YAML; the whole tuning unless profile:=NAME",
+            ),
+            DeclareLaunchArgument(
+                "use_sim_time", default_value="auto", description="auto (follow /clock once published), true or false"
+            ),
+            DeclareLaunchArgument(
+                "odometry_source",
+                default_value="",
+                description="odom, encoders or tf (odom -> base_link on /tf); empty: the parameters'",
+            ),
+            DeclareLaunchArgument(
+                "publish_sensor_tf",
+                default_value="auto",
+                description="mapper: base_link -> lidar on /tf_static from the parameters; auto: "
+                "only with a bag (a robot's TF tree has it)",
+            ),
+            DeclareLaunchArgument("texture", default_value="false", description="run the stereo texture node"),
+            DeclareLaunchArgument(
+                "sensor_qos",
+                default_value="",
+                description="reliable or best_effort (drivers publishing with the sensor-data QoS); "
+                "empty: the parameters'",
+            ),
+            DeclareLaunchArgument(
+                "map",
+                default_value="",
+                description="localization only: track the pose on this saved map (map_server .yaml)",
+            ),
+            DeclareLaunchArgument("scan_topic", default_value="/scan", description="sensor_msgs/LaserScan"),
+            DeclareLaunchArgument("odom_topic", default_value="/odom", description="nav_msgs/Odometry"),
+            DeclareLaunchArgument("encoders_topic", default_value="/encoders", description="sensor_msgs/JointState"),
+            DeclareLaunchArgument("fog_topic", default_value="/fog", description="FogBatch or Vector3Stamped"),
+            DeclareLaunchArgument("imu_topic", default_value="/imu", description="sensor_msgs/Imu (fog_format: imu)"),
+            OpaqueFunction(function=_nodes),
+        ]
+    )

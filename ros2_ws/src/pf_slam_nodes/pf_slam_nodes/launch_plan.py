@@ -4,6 +4,7 @@ so the launch file's decisions live here, where they are unit-tested).
 With `bag:=PATH` the graph replays it (bag_replay, /clock from the bag); without, it runs on live
 topics (a robot, or `ros2 bag play --clock` elsewhere) and bag_replay is not started.
 """
+
 from __future__ import annotations
 
 import os
@@ -20,9 +21,16 @@ def _bool_arg(name: str, value: str, allowed=("auto", "true", "false")) -> str:
     return v
 
 
-def graph_nodes(bag: str = "", use_sim_time: str = "auto", texture: str = "false", odometry_source: str = "",
-                publish_sensor_tf: str = "auto", scan_topic: str = "/scan", map: str = "",
-                sensor_qos: str = "") -> dict[str, dict[str, Any]]:
+def graph_nodes(
+    bag: str = "",
+    use_sim_time: str = "auto",
+    texture: str = "false",
+    odometry_source: str = "",
+    publish_sensor_tf: str = "auto",
+    scan_topic: str = "/scan",
+    map: str = "",
+    sensor_qos: str = "",
+) -> dict[str, dict[str, Any]]:
     """Node name -> the parameters the launch file adds for it (on top of the parameter files), in
     start order. use_sim_time auto: not set, so each node switches to /clock at its first message
     (nodes.common.follow_clock); bag_replay, the clock's source, never gets it.
@@ -33,10 +41,15 @@ def graph_nodes(bag: str = "", use_sim_time: str = "auto", texture: str = "false
     sim = _bool_arg("use_sim_time", use_sim_time)
     sensor_tf = _bool_arg("publish_sensor_tf", publish_sensor_tf)
     if odometry_source not in ODOMETRY_SOURCES:
-        raise ValueError(f"launch argument odometry_source:={odometry_source!r}: one of odom, encoders, tf "
-                         "(empty: the parameter files')")
-    names = (("bag_replay",) if bag else ()) + SLAM_NODES \
+        raise ValueError(
+            f"launch argument odometry_source:={odometry_source!r}: one of odom, encoders, tf "
+            "(empty: the parameter files')"
+        )
+    names = (
+        (("bag_replay",) if bag else ())
+        + SLAM_NODES
         + (("texture",) if _bool_arg("texture", texture, ("true", "false")) == "true" else ())
+    )
     out: dict[str, dict[str, Any]] = {n: {} for n in names}
     for n in names:
         if n != "bag_replay" and sim != "auto":

@@ -6,6 +6,7 @@ parameter's default and description (its ParameterDescriptor: the config datacla
 docstrings, `nodes.common.PARAM_DOCS`) and rewrites the table between the markers; a test fails
 when the file and the code disagree.
 """
+
 from __future__ import annotations
 
 import re
@@ -17,16 +18,26 @@ END = "<!-- END pf-slam params -->"
 SAMPLE_BAG = Path(__file__).resolve().parents[4] / "bags" / "sample_indoor"
 #: (node, parameter overrides) built to collect the declarations
 VARIANTS: list[tuple[str, dict[str, Any]]] = [
-    ("bag_replay", {}), ("predictor", {}),
+    ("bag_replay", {}),
+    ("predictor", {}),
     ("predictor", {"odometry_source": "encoders", "fog_format": "batch"}),
-    ("correlator", {}), ("mapper", {}), ("texture", {}),
+    ("correlator", {}),
+    ("mapper", {}),
+    ("texture", {}),
 ]
 _ROS_OWN = ("use_sim_time", "start_type_description_service", "qos_overrides.")
 _UNSET = object()  # only seen overridden: a required parameter
-_UNITS = {"m", "rad", "s", "px", "deg", "%", "cells", "probability", "m/m", "m/rad", "rad/m", "rad/rad", "s/s",
-          "m/s"}
-_SUFFIX_UNITS = (("_mps", "m/s"), ("_deg", "deg"), ("_px", "px"), ("_per_m", "1/m"), ("_per_rad", "1/rad"),
-                 ("_m", "m"), ("_rad", "rad"), ("_s", "s"))
+_UNITS = {"m", "rad", "s", "px", "deg", "%", "cells", "probability", "m/m", "m/rad", "rad/m", "rad/rad", "s/s", "m/s"}
+_SUFFIX_UNITS = (
+    ("_mps", "m/s"),
+    ("_deg", "deg"),
+    ("_px", "px"),
+    ("_per_m", "1/m"),
+    ("_per_rad", "1/rad"),
+    ("_m", "m"),
+    ("_rad", "rad"),
+    ("_s", "s"),
+)
 
 
 def declared_parameters(bag: str | Path = SAMPLE_BAG, domain_id: int | None = None) -> dict[str, dict[str, Any]]:
@@ -35,6 +46,7 @@ def declared_parameters(bag: str | Path = SAMPLE_BAG, domain_id: int | None = No
     ROS_DOMAIN_ID names one."""
     from .graph import _make_node
     from .ros.domain import ros_context
+
     out: dict[str, dict[str, Any]] = {}
     with ros_context(domain_id) as (ctx, _dom):
         for name, overrides in VARIANTS:
@@ -45,8 +57,10 @@ def declared_parameters(bag: str | Path = SAMPLE_BAG, domain_id: int | None = No
                 for pname, p in node._parameters.items():
                     if pname.startswith(_ROS_OWN):
                         continue
-                    row = out.setdefault(pname, {"nodes": [], "default": _UNSET,
-                                                 "description": node.describe_parameter(pname).description})
+                    row = out.setdefault(
+                        pname,
+                        {"nodes": [], "default": _UNSET, "description": node.describe_parameter(pname).description},
+                    )
                     if name not in row["nodes"]:
                         row["nodes"].append(name)
                     if pname not in overrides:  # an overridden value is not the default
@@ -81,17 +95,21 @@ def markdown_table(params: dict[str, dict[str, Any]]) -> str:
     for name in sorted(params, key=lambda n: ("." in n, n)):
         row = params[name]
         if not row["description"]:
-            raise ValueError(f"parameter {name!r} ({', '.join(row['nodes'])}) has no description: "
-                             "add it to nodes.common.PARAM_DOCS or the config class's docstring")
+            raise ValueError(
+                f"parameter {name!r} ({', '.join(row['nodes'])}) has no description: "
+                "add it to nodes.common.PARAM_DOCS or the config class's docstring"
+            )
         sec = name.split(".")[0] if "." in name else ""
         desc = row["description"].replace("|", "\\|")
         sections.setdefault(sec, []).append(
-            f"| `{name}` | {', '.join(row['nodes'])} | {_fmt(row['default'])} | {unit_of(name, desc)} | {desc} |")
+            f"| `{name}` | {', '.join(row['nodes'])} | {_fmt(row['default'])} | {unit_of(name, desc)} | {desc} |"
+        )
     parts = []
     for sec, rows in sections.items():
         title = "Node parameters" if not sec else f"`{sec}.*`"
-        parts.append(f"### {title}\n\n| parameter | nodes | default | unit | effect |\n|---|---|---|---|---|\n"
-                     + "\n".join(rows))
+        parts.append(
+            f"### {title}\n\n| parameter | nodes | default | unit | effect |\n|---|---|---|---|---|\n" + "\n".join(rows)
+        )
     return "\n\n".join(parts)
 
 

@@ -7,19 +7,29 @@ publishes nothing of pf_slam's own topics (no end-of-bag status), so a live grap
 what a robot or `ros2 bag play` would give it. Messages go out as recorded (CDR bytes); the bag
 reading, message classes, QoS of latched topics and the /clock bytes are bag_replay's.
 """
+
 from __future__ import annotations
 
 import time
-from typing import Callable
+from collections.abc import Callable
 
 from .io.bag import bag_info, read_bag
 from .nodes.bag_replay import LATCHED_TOPICS, message_class, parse_rate
 from .ros import cdr, qos, topics
 
 
-def play(bag: str, rate: str = "1", clock: bool = False, delay_s: float = 0.0, clock_period_s: float = 0.025,
-         topic_filter: list[str] | None = None, context=None, log: Callable[[str], None] = print,
-         wait_for: list[str] | None = None, wait_timeout_s: float = 30.0) -> dict[str, int]:
+def play(
+    bag: str,
+    rate: str = "1",
+    clock: bool = False,
+    delay_s: float = 0.0,
+    clock_period_s: float = 0.025,
+    topic_filter: list[str] | None = None,
+    context=None,
+    log: Callable[[str], None] = print,
+    wait_for: list[str] | None = None,
+    wait_timeout_s: float = 30.0,
+) -> dict[str, int]:
     """Publish the bag (see the module); returns the messages published per topic.
 
     `rate`: '1' real time, 'N' N times faster, 'max' as fast as possible. `delay_s`: wait this long
@@ -32,6 +42,7 @@ def play(bag: str, rate: str = "1", clock: bool = False, delay_s: float = 0.0, c
     """
     import rclpy
     from rosgraph_msgs.msg import Clock
+
     try:
         factor = parse_rate(rate)
     except ValueError:
@@ -48,9 +59,12 @@ def play(bag: str, rate: str = "1", clock: bool = False, delay_s: float = 0.0, c
     node = rclpy.create_node("pf_slam_player", context=context)
     published = {t: 0 for t in sorted(wanted)}
     try:
-        pubs = {t: node.create_publisher(message_class(info["topics"][t][0]), t,
-                                         qos.latched(10) if t in LATCHED_TOPICS else qos.pipeline(1000))
-                for t in published}
+        pubs = {
+            t: node.create_publisher(
+                message_class(info["topics"][t][0]), t, qos.latched(10) if t in LATCHED_TOPICS else qos.pipeline(1000)
+            )
+            for t in published
+        }
         pub_clock = node.create_publisher(Clock, topics.CLOCK, qos.outputs(10)) if clock else None
         deadline = time.monotonic() + wait_timeout_s
         for t in wait_for or ():
@@ -59,8 +73,10 @@ def play(bag: str, rate: str = "1", clock: bool = False, delay_s: float = 0.0, c
             if pubs[t].get_subscription_count() < 1:
                 log(f"[pf-slam] warning: no subscriber on {t} after {wait_timeout_s:g} s: playing anyway")
         time.sleep(max(delay_s, 0.0))
-        log(f"[pf-slam] playing {bag}: {sum(info['topics'][t][1] for t in published)} messages on "
-            f"{len(published)} topics at rate {rate}{', with /clock' if clock else ''}")
+        log(
+            f"[pf-slam] playing {bag}: {sum(info['topics'][t][1] for t in published)} messages on "
+            f"{len(published)} topics at rate {rate}{', with /clock' if clock else ''}"
+        )
         period_ns = int(clock_period_s * 1e9)
         t0_wall, t0_bag, last_clock = time.monotonic(), info["start_ns"], None
         for topic, _msgtype, stamp_ns, raw in read_bag(bag, topics=published):
@@ -87,12 +103,17 @@ def play(bag: str, rate: str = "1", clock: bool = False, delay_s: float = 0.0, c
         node.destroy_node()
         if own and context.ok():
             rclpy.shutdown(context=context)
-    log(f"[pf-slam] played {sum(published.values())} messages: "
-        + ", ".join(f"{t} {n}" for t, n in published.items()))
+    log(f"[pf-slam] played {sum(published.values())} messages: " + ", ".join(f"{t} {n}" for t, n in published.items()))
     return published
 
 
 def play_cli(args) -> int:
-    play(args.bag, rate=args.rate, clock=args.clock, delay_s=args.delay, topic_filter=args.topics or None,
-         wait_for=args.wait_for)
+    play(
+        args.bag,
+        rate=args.rate,
+        clock=args.clock,
+        delay_s=args.delay,
+        topic_filter=args.topics or None,
+        wait_for=args.wait_for,
+    )
     return 0

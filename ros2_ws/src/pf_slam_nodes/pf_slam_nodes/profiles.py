@@ -17,6 +17,7 @@ Where it goes: the lowest user-visible layer. The parameters of `pf-slam run` ar
 built-in defaults < profile < what the bag says about itself (detect_inputs: odometry source,
 pairing, gyro format, wheel geometry, lidar mount) < --params FILE < command-line flags.
 """
+
 from __future__ import annotations
 
 import math
@@ -27,8 +28,13 @@ from typing import Any
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "config"
 
 #: profile name -> its file in config/
-PROFILES = {"indoor": "carmen_indoor.yaml", "kaist": "kaist.yaml", "mines": "mines.yaml",
-            "sim_indoor": "sim_indoor.yaml", "thor": "thor.yaml"}
+PROFILES = {
+    "indoor": "carmen_indoor.yaml",
+    "kaist": "kaist.yaml",
+    "mines": "mines.yaml",
+    "sim_indoor": "sim_indoor.yaml",
+    "thor": "thor.yaml",
+}
 #: other names accepted by --profile (the files' own names)
 ALIASES = {"carmen": "indoor", "carmen_indoor": "indoor", "car": "kaist"}
 #: the converters' pf_slam.format -> profile
@@ -43,9 +49,9 @@ class ProfileError(ValueError):
 
 @dataclass(frozen=True)
 class Profile:
-    name: str           # a key of PROFILES, or "none"
-    why: str            # one line: what in the bag (or the command line) chose it
-    file: Path | None   # None for "none"
+    name: str  # a key of PROFILES, or "none"
+    why: str  # one line: what in the bag (or the command line) chose it
+    file: Path | None  # None for "none"
 
     def line(self) -> str:
         """'[pf-slam] profile: kaist (bag metadata pf_slam.format=kaist, written by pf-slam convert kaist); config/kaist.yaml'."""
@@ -71,8 +77,10 @@ def forced_profile(name: str) -> Profile:
     if key == "none":
         return Profile("none", "--profile none: the nodes' built-in defaults", None)
     if key not in PROFILES:
-        raise ProfileError(f"--profile {name}: unknown profile; profiles: auto, none, " + ", ".join(
-            f"{n} ({f})" for n, f in PROFILES.items()))
+        raise ProfileError(
+            f"--profile {name}: unknown profile; profiles: auto, none, "
+            + ", ".join(f"{n} ({f})" for n, f in PROFILES.items())
+        )
     return _named(key, f"--profile {name}")
 
 
@@ -87,16 +95,19 @@ def from_metadata(custom: dict[str, str]) -> Profile | None:
     if "pf_slam.wheel_radius_m" in custom and "pf_slam.half_axle_m" in custom:
         return _named("mines", "bag metadata pf_slam.wheel_radius_m, written by pf-slam convert mines")
     if "pf_slam.odom_source" in custom:
-        return _named("indoor", f"bag metadata pf_slam.source={src or '?'}, pf_slam.odom_source, "
-                                "written by pf-slam convert carmen")
+        return _named(
+            "indoor",
+            f"bag metadata pf_slam.source={src or '?'}, pf_slam.odom_source, written by pf-slam convert carmen",
+        )
     sim = str(custom.get("pf_slam.sim", ""))
     if sim.split(" ", 1)[0] == "indoor":
         return _named("sim_indoor", f"bag metadata pf_slam.sim={sim}, written by pf-slam simulate-indoor")
     return None
 
 
-def from_sensors(inputs: dict[str, str], planar: bool, rpy_deg: tuple[float, float, float] | None,
-                 range_max: float | None) -> Profile:
+def from_sensors(
+    inputs: dict[str, str], planar: bool, rpy_deg: tuple[float, float, float] | None, range_max: float | None
+) -> Profile:
     """The profile the bag's sensors imply (no converter metadata): `inputs` as select_inputs()
     chose them, the lidar mount's planarity (and roll/pitch, for the text), the scans' range_max."""
     motion = "Odometry" if "odom" in inputs else "wheel encoders"
@@ -104,17 +115,24 @@ def from_sensors(inputs: dict[str, str], planar: bool, rpy_deg: tuple[float, flo
     rng = f", range_max {range_max:g} m" if range_max is not None and math.isfinite(range_max) else ""
     if not planar:
         tilt = f" (roll {rpy_deg[0]:.0f}°, pitch {rpy_deg[1]:.0f}°)" if rpy_deg else ""
-        return _named("kaist", f"LaserScan + {motion}{gyro}, tilted 3D lidar mount{tilt}: a car; "
-                               "no converter metadata")
+        return _named("kaist", f"LaserScan + {motion}{gyro}, tilted 3D lidar mount{tilt}: a car; no converter metadata")
     if "encoders" in inputs and range_max is not None and range_max <= SHORT_RANGE_M:
-        return _named("mines", f"LaserScan + {motion}{gyro}, planar lidar{rng} (<= {SHORT_RANGE_M:g} m): "
-                               "a small robot; no converter metadata")
+        return _named(
+            "mines",
+            f"LaserScan + {motion}{gyro}, planar lidar{rng} (<= {SHORT_RANGE_M:g} m): "
+            "a small robot; no converter metadata",
+        )
     return _named("indoor", f"LaserScan + {motion}{gyro}, planar lidar{rng}; no converter metadata")
 
 
-def choose_profile(custom: dict[str, str], inputs: dict[str, str], planar: bool,
-                   rpy_deg: tuple[float, float, float] | None = None, range_max: float | None = None,
-                   forced: str | None = None) -> Profile:
+def choose_profile(
+    custom: dict[str, str],
+    inputs: dict[str, str],
+    planar: bool,
+    rpy_deg: tuple[float, float, float] | None = None,
+    range_max: float | None = None,
+    forced: str | None = None,
+) -> Profile:
     """--profile, else the bag's metadata, else its sensors (module docstring)."""
     if forced not in (None, "", "auto"):
         return forced_profile(forced)
@@ -126,6 +144,7 @@ def profile_for_bag(bag: str, forced: str | None = None) -> Profile:
     picks its inputs as `pf-slam run` does, looks up the lidar mount and the first scan."""
     from .graph import inspect_stamps, lidar_mount, sample_bag, select_inputs
     from .io.bag import bag_info
+
     if forced not in (None, "", "auto"):
         return forced_profile(forced)
     info = bag_info(bag)
@@ -133,5 +152,10 @@ def profile_for_bag(bag: str, forced: str | None = None) -> Profile:
     sample = sample_bag(bag, info, inputs, max_scans=1)  # the bag read once
     stamps = inspect_stamps(sample, inputs)
     mount = lidar_mount(sample, info, inputs, scan_frame=stamps["scan_frame"])
-    return choose_profile(info.get("custom_data", {}), inputs, mount.planar,
-                          tuple(math.degrees(v) for v in mount.rpy), stamps.get("scan_range_max"))
+    return choose_profile(
+        info.get("custom_data", {}),
+        inputs,
+        mount.planar,
+        tuple(math.degrees(v) for v in mount.rpy),
+        stamps.get("scan_range_max"),
+    )

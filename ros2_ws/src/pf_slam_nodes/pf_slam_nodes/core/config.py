@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Mapping, Optional, TypeVar
+from collections.abc import Mapping
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -227,8 +228,8 @@ class GridConfig(_ConfigBase):
     resolution_m: float = 0.05
     size_x_m: float = 100.0
     size_y_m: float = 100.0
-    origin_x_m: Optional[float] = None
-    origin_y_m: Optional[float] = None
+    origin_x_m: float | None = None
+    origin_y_m: float | None = None
     log_odds_hit: float = 0.85
     log_odds_miss: float = -0.4
     clip_min: float = -5.0

@@ -8,14 +8,13 @@ Unknown cells are not obstacles. Lookups outside the field return the clamp valu
 from __future__ import annotations
 
 import math
-from typing import Optional
 
 import cv2
 import numpy as np
 
 from .config import CorrelationConfig
-from .grid import OccupancyMap
 from .geometry import wrap_angle
+from .grid import OccupancyMap
 
 #: Border (cells) of clamp value around the stored field; bounds the window search shift.
 DEFAULT_PAD_CELLS = 32
@@ -73,11 +72,16 @@ class LikelihoodField:
         self.pad = int(pad_cells)
         p = self.pad
         self._dist = cv2.copyMakeBorder(
-            np.minimum(d, np.float32(self.max_distance_m)), p, p, p, p, cv2.BORDER_CONSTANT,
+            np.minimum(d, np.float32(self.max_distance_m)),
+            p,
+            p,
+            p,
+            p,
+            cv2.BORDER_CONSTANT,
             value=float(self.max_distance_m),
         )
         self._wp = self._dist.shape[1]
-        self._loglik = (self._dist * self._dist) * np.float32(-0.5 / (self.sigma_m ** 2))
+        self._loglik = (self._dist * self._dist) * np.float32(-0.5 / (self.sigma_m**2))
         self._dist_flat = self._dist.reshape(-1)
         self._refresh_prob(None)
         self._loglik_flat = self._loglik.reshape(-1)
@@ -96,13 +100,13 @@ class LikelihoodField:
     def log_likelihood(self) -> np.ndarray:
         """``(H, W)`` float32 log-likelihood (view, unpadded)."""
         p = self.pad
-        return self._loglik[p:p + self.height, p:p + self.width]
+        return self._loglik[p : p + self.height, p : p + self.width]
 
     @property
     def distance_m(self) -> np.ndarray:
         """``(H, W)`` float32 clamped obstacle distance (view, unpadded)."""
         p = self.pad
-        return self._dist[p:p + self.height, p:p + self.width]
+        return self._dist[p : p + self.height, p : p + self.width]
 
     def _cells(self, xy: np.ndarray, margin: int) -> tuple[np.ndarray, np.ndarray]:
         """Padded integer cell coords of the cells containing ``xy``, clipped into the border."""
@@ -192,8 +196,14 @@ class GridLikelihoodField(LikelihoodField):
     """
 
     def __init__(self, height: int, width: int, resolution: float, origin, cfg: CorrelationConfig) -> None:
-        super().__init__(np.full((height, width), cfg.max_distance_m, dtype=np.float32), resolution, origin,
-                         cfg.sigma_m, cfg.max_distance_m, DEFAULT_PAD_CELLS)
+        super().__init__(
+            np.full((height, width), cfg.max_distance_m, dtype=np.float32),
+            resolution,
+            origin,
+            cfg.sigma_m,
+            cfg.max_distance_m,
+            DEFAULT_PAD_CELLS,
+        )
         self.occupied_threshold = int(cfg.occupied_threshold)
         self.obstacles = np.zeros((height, width), dtype=bool)
         self._anchor = self.origin.copy()  # the initial origin; cells keep their place on growth
@@ -215,7 +225,7 @@ class GridLikelihoodField(LikelihoodField):
 
         def table(old: np.ndarray) -> np.ndarray:  # padded: the border value is the clamp's
             out = np.full((nh + 2 * p, nw + 2 * p), old[0, 0], dtype=old.dtype)
-            out[p + top:p + top + h, p + left:p + left + w] = old[p:p + h, p:p + w]
+            out[p + top : p + top + h, p + left : p + left + w] = old[p : p + h, p : p + w]
             return out
 
         self._dist, self._loglik, self._prob = table(self._dist), table(self._loglik), table(self._prob)
@@ -279,7 +289,7 @@ class GridLikelihoodField(LikelihoodField):
         changes; like :meth:`set_obstacles` without flat index arrays. Returns the cells changed."""
         block = np.asarray(is_obstacle, dtype=bool)
         h, w = block.shape
-        view = self.obstacles[row0:row0 + h, col0:col0 + w]
+        view = self.obstacles[row0 : row0 + h, col0 : col0 + w]
         changed = view != block
         if not changed.any():
             return 0
@@ -333,13 +343,13 @@ class GridLikelihoodField(LikelihoodField):
         if m.any():
             src = np.where(m, np.uint8(0), np.uint8(255))
             d = cv2.distanceTransform(src, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) * np.float32(self.resolution)
-            d = np.minimum(d[o0 - s0:o1 - s0, p0 - q0:p1 - q0], np.float32(self.max_distance_m))
+            d = np.minimum(d[o0 - s0 : o1 - s0, p0 - q0 : p1 - q0], np.float32(self.max_distance_m))
         else:
             d = np.float32(self.max_distance_m)
         p = self.pad
-        self._dist[p + o0:p + o1, p + p0:p + p1] = d
-        dd = self._dist[p + o0:p + o1, p + p0:p + p1]
-        self._loglik[p + o0:p + o1, p + p0:p + p1] = (dd * dd) * np.float32(-0.5 / (self.sigma_m ** 2))
+        self._dist[p + o0 : p + o1, p + p0 : p + p1] = d
+        dd = self._dist[p + o0 : p + o1, p + p0 : p + p1]
+        self._loglik[p + o0 : p + o1, p + p0 : p + p1] = (dd * dd) * np.float32(-0.5 / (self.sigma_m**2))
         self._refresh_prob((p + o0, p + o1, p + p0, p + p1))
 
 
@@ -363,7 +373,7 @@ def build_likelihood_field(
     sigma_m: float,
     occupied_threshold: int = 65,
     origin=(0.0, 0.0),
-    max_distance_m: Optional[float] = None,
+    max_distance_m: float | None = None,
     pad_cells: int = DEFAULT_PAD_CELLS,
 ) -> LikelihoodField:
     """Likelihood field of an int8 occupancy grid (exact Euclidean distance transform).
@@ -402,7 +412,11 @@ def build_likelihood_field(
 def build_likelihood_field_from_map(occ_map: OccupancyMap, cfg: CorrelationConfig) -> LikelihoodField:
     """Likelihood field of an :class:`OccupancyMap` with the parameters of ``cfg``."""
     return build_likelihood_field(
-        occ_map.data, occ_map.resolution, cfg.sigma_m, cfg.occupied_threshold, occ_map.origin,
+        occ_map.data,
+        occ_map.resolution,
+        cfg.sigma_m,
+        cfg.occupied_threshold,
+        occ_map.origin,
         cfg.max_distance_m,
     )
 
@@ -411,8 +425,9 @@ def build_likelihood_field_from_mask(
     obstacle_mask: np.ndarray, resolution: float, origin, cfg: CorrelationConfig
 ) -> LikelihoodField:
     """Likelihood field from a bool obstacle mask ``(H, W)`` (e.g. ``LogOddsGrid.occupied_mask``)."""
-    return _field_from_obstacle_mask(obstacle_mask, resolution, origin, cfg.sigma_m, cfg.max_distance_m,
-                                     DEFAULT_PAD_CELLS)
+    return _field_from_obstacle_mask(
+        obstacle_mask, resolution, origin, cfg.sigma_m, cfg.max_distance_m, DEFAULT_PAD_CELLS
+    )
 
 
 def _offsets(half: float, step: float) -> np.ndarray:
@@ -450,8 +465,9 @@ def _points_in_table(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField,
     return u, v, rx, ry
 
 
-def _window_scores_remap(cand: np.ndarray, pts: np.ndarray, field: LikelihoodField, sx: np.ndarray,
-                         sy: np.ndarray) -> np.ndarray:
+def _window_scores_remap(
+    cand: np.ndarray, pts: np.ndarray, field: LikelihoodField, sx: np.ndarray, sy: np.ndarray
+) -> np.ndarray:
     """``(K, S)`` summed nearest-cell log-likelihood of every candidate pose ``(K, 3)`` at every
     whole-cell shift (dy-major (dy, dx) order), one remap per shift."""
     u, v, _, _ = _points_in_table(cand, pts, field)
@@ -462,8 +478,9 @@ def _window_scores_remap(cand: np.ndarray, pts: np.ndarray, field: LikelihoodFie
     for dy in sy:
         vv = v + np.float32(dy)
         for dx in sx:
-            vals = cv2.remap(table, u + np.float32(dx), vv, cv2.INTER_NEAREST,
-                             borderMode=cv2.BORDER_CONSTANT, borderValue=clamp)
+            vals = cv2.remap(
+                table, u + np.float32(dx), vv, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=clamp
+            )
             out[:, k] = vals.sum(axis=1, dtype=np.float64)
             k += 1
     return out
@@ -520,11 +537,10 @@ def window_search(
     # remap: one row per candidate (particle x yaw) and remap takes < SHRT_MAX rows; the index
     # tensor of the numpy path is (n, J, S, M): bound either by chunks of particles (each
     # particle's scores do not depend on the chunking: the same results for any chunk size)
-    chunk = (max(1, (_REMAP_MAX_CELLS - 1) // n_yaw) if remap
-             else max(1, _CHUNK_ELEMENTS // max(1, n_yaw * n_shift * m)))
+    chunk = max(1, (_REMAP_MAX_CELLS - 1) // n_yaw) if remap else max(1, _CHUNK_ELEMENTS // max(1, n_yaw * n_shift * m))
     table = field._loglik_flat
     for i0 in range(0, n, chunk):  # chunks of particles (not one particle at a time)
-        p = poses[i0:i0 + chunk]
+        p = poses[i0 : i0 + chunk]
         if remap:
             cand = np.repeat(p, n_yaw, axis=0)
             cand[:, 2] += np.tile(yaws, p.shape[0])
@@ -544,10 +560,10 @@ def window_search(
         k = np.argmax(flat, axis=1)
         j, sidx = np.divmod(k, n_shift)
         iy, ix = np.divmod(sidx, sx.size)
-        best_poses[i0:i0 + chunk, 0] = p[:, 0] + sx[ix] * res
-        best_poses[i0:i0 + chunk, 1] = p[:, 1] + sy[iy] * res
-        best_poses[i0:i0 + chunk, 2] = p[:, 2] + yaws[j]
-        best_scores[i0:i0 + chunk] = flat[np.arange(p.shape[0]), k]
+        best_poses[i0 : i0 + chunk, 0] = p[:, 0] + sx[ix] * res
+        best_poses[i0 : i0 + chunk, 1] = p[:, 1] + sy[iy] * res
+        best_poses[i0 : i0 + chunk, 2] = p[:, 2] + yaws[j]
+        best_scores[i0 : i0 + chunk] = flat[np.arange(p.shape[0]), k]
     best_poses[:, 2] = wrap_angle(best_poses[:, 2])
     return best_poses, best_scores
 
@@ -559,10 +575,10 @@ def _prior_penalty(dx: np.ndarray, dy: np.ndarray, dyaw: np.ndarray, cfg: Correl
         return None
     t = np.zeros((dy.size, dx.size))
     if cfg.prior_sigma_xy_m > 0:
-        t = (dy[:, None] ** 2 + dx[None, :] ** 2) * (0.5 / cfg.prior_sigma_xy_m ** 2)
+        t = (dy[:, None] ** 2 + dx[None, :] ** 2) * (0.5 / cfg.prior_sigma_xy_m**2)
     r = np.zeros(dyaw.size)
     if cfg.prior_sigma_yaw_rad > 0:
-        r = dyaw ** 2 * (0.5 / cfg.prior_sigma_yaw_rad ** 2)
+        r = dyaw**2 * (0.5 / cfg.prior_sigma_yaw_rad**2)
     return r[:, None] + t.reshape(1, -1)
 
 
@@ -571,15 +587,17 @@ def _prior_cost(poses: np.ndarray, predicted: np.ndarray, cfg: CorrelationConfig
     c = np.zeros(poses.shape[0])
     if cfg.prior_sigma_xy_m > 0:
         c += ((poses[:, 0] - predicted[:, 0]) ** 2 + (poses[:, 1] - predicted[:, 1]) ** 2) * (
-            0.5 / cfg.prior_sigma_xy_m ** 2)
+            0.5 / cfg.prior_sigma_xy_m**2
+        )
     if cfg.prior_sigma_yaw_rad > 0:
         dth = wrap_angle(poses[:, 2] - predicted[:, 2])
-        c += dth ** 2 * (0.5 / cfg.prior_sigma_yaw_rad ** 2)
+        c += dth**2 * (0.5 / cfg.prior_sigma_yaw_rad**2)
     return c
 
 
-def _cost(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField, residual: str = "likelihood",
-          precision: str = "float64"):
+def _cost(
+    poses: np.ndarray, pts: np.ndarray, field: LikelihoodField, residual: str = "likelihood", precision: str = "float64"
+):
     """Residuals ``(N, M)``, their gradients ``gx, gy`` (1/m) and the rotated points ``rx, ry``.
 
     ``residual='distance'``: the bilinear obstacle distance; ``'likelihood'``: ``1 - M`` with
@@ -593,8 +611,14 @@ def _cost(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField, residual: 
     return 1.0 - val, -gx, -gy, rx, ry  # r = 1 - M, dr = -dM
 
 
-def _bilinear_at(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField, table: np.ndarray,
-                 gradient: bool, precision: str = "float64"):
+def _bilinear_at(
+    poses: np.ndarray,
+    pts: np.ndarray,
+    field: LikelihoodField,
+    table: np.ndarray,
+    gradient: bool,
+    precision: str = "float64",
+):
     """Bilinear ``table`` values ``(N, M)`` at the points seen from every pose and
     (``gradient``) the exact gradient of the interpolant (1/m) with the rotated points:
     ``val, gx, gy, rx, ry``. Inlined (no ``(..., 2)`` stacking): the refinement calls this with
@@ -631,7 +655,11 @@ def _rowdot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def refine(
-    poses: np.ndarray, points: np.ndarray, field: LikelihoodField, iterations: int, residual: str = "likelihood",
+    poses: np.ndarray,
+    points: np.ndarray,
+    field: LikelihoodField,
+    iterations: int,
+    residual: str = "likelihood",
     precision: str = "float64",
 ) -> tuple[np.ndarray, np.ndarray]:
     """Damped Gauss-Newton refinement of ``sum r(p_i)^2`` for every pose (vectorised).
@@ -736,8 +764,8 @@ def correlate(
     pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= cfg.range_max_m]
     if pts.shape[0] == 0:
         return poses.copy(), np.zeros(poses.shape[0])
-    search_pts = pts[::cfg.beam_stride]
-    refine_pts = pts[::cfg.refine_beam_stride]
+    search_pts = pts[:: cfg.beam_stride]
+    refine_pts = pts[:: cfg.refine_beam_stride]
     best, _ = window_search(poses, search_pts, field, cfg)
     best, _ = refine(best, refine_pts, field, cfg.refine_iterations, cfg.refine_residual, cfg.precision)
     score = _score(best, poses, refine_pts, field, cfg)
@@ -751,8 +779,9 @@ def correlate(
     return best, score
 
 
-def _blend(predicted: np.ndarray, matched: np.ndarray, pts: np.ndarray, field: LikelihoodField,
-           cfg: CorrelationConfig) -> tuple[np.ndarray, np.ndarray]:
+def _blend(
+    predicted: np.ndarray, matched: np.ndarray, pts: np.ndarray, field: LikelihoodField, cfg: CorrelationConfig
+) -> tuple[np.ndarray, np.ndarray]:
     """The poses a fraction ``cfg.gain_*`` of the way from ``predicted`` to ``matched`` and
     their scores (:func:`_score`)."""
     step = matched - predicted
@@ -762,9 +791,10 @@ def _blend(predicted: np.ndarray, matched: np.ndarray, pts: np.ndarray, field: L
     return out, _score(out, predicted, pts, field, cfg)
 
 
-def _score(poses: np.ndarray, predicted: np.ndarray, pts: np.ndarray, field: LikelihoodField,
-           cfg: CorrelationConfig) -> np.ndarray:
+def _score(
+    poses: np.ndarray, predicted: np.ndarray, pts: np.ndarray, field: LikelihoodField, cfg: CorrelationConfig
+) -> np.ndarray:
     """``(N,)`` the weight update of particles at ``poses``: ``-sum d^2 / (2 sigma^2)`` over the
     points minus the motion prior's cost relative to ``predicted`` (0 without a prior)."""
     d = _distances(poses, pts, field, cfg.precision)
-    return -0.5 * _rowdot(d, d) / (cfg.sigma_m ** 2) - _prior_cost(poses, predicted, cfg)
+    return -0.5 * _rowdot(d, d) / (cfg.sigma_m**2) - _prior_cost(poses, predicted, cfg)

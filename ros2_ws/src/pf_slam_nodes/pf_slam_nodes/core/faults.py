@@ -5,10 +5,10 @@ filter keeps going on bad input, skipping or clamping what it cannot use; these 
 fault once so the predictor can log it (throttled) and the run can count it in summary.json.
 ROS-free: the predictor reads the scan's fields from its CDR bytes and calls these.
 """
+
 from __future__ import annotations
 
 import math
-from typing import Optional
 
 import numpy as np
 
@@ -16,13 +16,13 @@ from .scan import scan_limits_ok
 
 #: the counters of summary.json "faults" (the odometry buffers count theirs: odom_time_backwards,
 #: odom_missing, fog_out_of_order; WheelOdometryIntegrator counts encoder_jump)
-SCAN_BAD_RANGES = "scan_bad_ranges"          # a scan with NaN or negative ranges: those beams ignored
+SCAN_BAD_RANGES = "scan_bad_ranges"  # a scan with NaN or negative ranges: those beams ignored
 SCAN_COUNT_MISMATCH = "scan_count_mismatch"  # range count != what the angles say: not corrected with
-SCAN_BAD_LIMITS = "scan_bad_limits"          # range_min/range_max unusable (max <= 0, min > max, NaN, min < 0): not used
-TIME_BACKWARDS = "time_backwards"            # a scan stamped before the previous one
-TIME_GAP = "time_gap"                        # a scan more than time_gap_s after the previous one
-SCAN_UNREADABLE = "scan_unreadable"          # bytes that are not a LaserScan: posed from odometry
-ODOMETRY_NONFINITE = "odometry_nonfinite"    # an odometry / encoder / FOG message with NaN or inf: dropped
+SCAN_BAD_LIMITS = "scan_bad_limits"  # range_min/range_max unusable (max <= 0, min > max, NaN, min < 0): not used
+TIME_BACKWARDS = "time_backwards"  # a scan stamped before the previous one
+TIME_GAP = "time_gap"  # a scan more than time_gap_s after the previous one
+SCAN_UNREADABLE = "scan_unreadable"  # bytes that are not a LaserScan: posed from odometry
+ODOMETRY_NONFINITE = "odometry_nonfinite"  # an odometry / encoder / FOG message with NaN or inf: dropped
 
 
 class ScanChecks:
@@ -36,13 +36,26 @@ class ScanChecks:
         if not time_gap_s > 0:
             raise ValueError(f"time_gap_s must be > 0, got {time_gap_s!r}")
         self.gap_ns = int(time_gap_s * 1e9)
-        self.counts = {SCAN_BAD_RANGES: 0, SCAN_COUNT_MISMATCH: 0, SCAN_BAD_LIMITS: 0, SCAN_UNREADABLE: 0,
-                       TIME_BACKWARDS: 0, TIME_GAP: 0}
-        self.last_stamp_ns: Optional[int] = None
+        self.counts = {
+            SCAN_BAD_RANGES: 0,
+            SCAN_COUNT_MISMATCH: 0,
+            SCAN_BAD_LIMITS: 0,
+            SCAN_UNREADABLE: 0,
+            TIME_BACKWARDS: 0,
+            TIME_GAP: 0,
+        }
+        self.last_stamp_ns: int | None = None
 
-    def check(self, stamp_ns: int, ranges: np.ndarray, angle_min: float, angle_max: float,
-              angle_increment: float, range_min: float = 0.0,
-              range_max: float = math.inf) -> tuple[bool, list[tuple[str, str]]]:
+    def check(
+        self,
+        stamp_ns: int,
+        ranges: np.ndarray,
+        angle_min: float,
+        angle_max: float,
+        angle_increment: float,
+        range_min: float = 0.0,
+        range_max: float = math.inf,
+    ) -> tuple[bool, list[tuple[str, str]]]:
         """One scan -> (usable for a correction?, [(fault kind, what was wrong)]).
 
         NaN and negative ranges (``-inf`` included) are faults; ``+inf`` is "no return" (REP 117)
@@ -68,9 +81,14 @@ class ScanChecks:
             faults.append((SCAN_BAD_RANGES, f"{bad} of {r.size} ranges NaN or negative, ignored"))
         limits_ok = scan_limits_ok(range_min, range_max)
         if not limits_ok:
-            faults.append((SCAN_BAD_LIMITS, f"range_min {range_min:g}, range_max {range_max:g}: no range can be "
-                           "valid (needs 0 <= range_min <= range_max, range_max > 0, not NaN); not corrected "
-                           "or mapped with, posed from odometry"))
+            faults.append(
+                (
+                    SCAN_BAD_LIMITS,
+                    f"range_min {range_min:g}, range_max {range_max:g}: no range can be "
+                    "valid (needs 0 <= range_min <= range_max, range_max > 0, not NaN); not corrected "
+                    "or mapped with, posed from odometry",
+                )
+            )
         count_ok = True
         if angle_increment != 0 and math.isfinite(angle_min + angle_max + angle_increment):
             expected = (angle_max - angle_min) / angle_increment + 1.0
@@ -80,16 +98,30 @@ class ScanChecks:
             expected, count_ok = float("nan"), False
         usable = limits_ok and count_ok
         if not count_ok:
-            faults.append((SCAN_COUNT_MISMATCH, f"{r.size} ranges but angle_min {angle_min:.4f}, angle_max "
-                           f"{angle_max:.4f}, increment {angle_increment:.6f} give {expected:.1f}: "
-                           "not corrected with, posed from odometry"))
+            faults.append(
+                (
+                    SCAN_COUNT_MISMATCH,
+                    f"{r.size} ranges but angle_min {angle_min:.4f}, angle_max "
+                    f"{angle_max:.4f}, increment {angle_increment:.6f} give {expected:.1f}: "
+                    "not corrected with, posed from odometry",
+                )
+            )
         last = self.last_stamp_ns
         if last is not None and stamp_ns < last:
-            faults.append((TIME_BACKWARDS, f"stamp {(last - stamp_ns) / 1e9:.3f} s before the previous scan's "
-                           "(odometry looked up at it, clamped to what has arrived)"))
+            faults.append(
+                (
+                    TIME_BACKWARDS,
+                    f"stamp {(last - stamp_ns) / 1e9:.3f} s before the previous scan's "
+                    "(odometry looked up at it, clamped to what has arrived)",
+                )
+            )
         elif last is not None and stamp_ns - last > self.gap_ns:
-            faults.append((TIME_GAP, f"{(stamp_ns - last) / 1e9:.1f} s since the previous scan "
-                           "(odometry increment over the gap used)"))
+            faults.append(
+                (
+                    TIME_GAP,
+                    f"{(stamp_ns - last) / 1e9:.1f} s since the previous scan (odometry increment over the gap used)",
+                )
+            )
         self.last_stamp_ns = stamp_ns  # a step is counted once, not every scan until time catches up
         for kind, _ in faults:
             self.counts[kind] += 1
@@ -103,7 +135,7 @@ class ScanChecks:
         where = "its own stamp" if own_stamp else "the previous scan's stamp"
         return [(SCAN_UNREADABLE, f"unreadable ({error}): posed from odometry at {where}")]
 
-    def readable_stamp(self, raw: bytes, reader) -> Optional[int]:
+    def readable_stamp(self, raw: bytes, reader) -> int | None:
         """The header stamp of an otherwise unreadable scan (``reader``: a CDR reader class with
         ``stamp_ns()``), if it can be read and lies within ``time_gap_s`` of the previous scan's;
         else None. The previous stamp is not updated: an unreadable scan does not count for the

@@ -15,21 +15,21 @@ import them from here.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
 __all__ = [
-    'compose',
-    'matrix_to_quat',
-    'nearest_rotation',
-    'quat_to_matrix',
-    'quat_to_yaw',
-    'relative_pose',
-    'rpy_to_matrix',
-    'rpy_to_quat',
-    'wrap_angle',
-    'yaw_to_quat',
+    "compose",
+    "matrix_to_quat",
+    "nearest_rotation",
+    "quat_to_matrix",
+    "quat_to_yaw",
+    "relative_pose",
+    "rpy_to_matrix",
+    "rpy_to_quat",
+    "wrap_angle",
+    "yaw_to_quat",
 ]
 
 
@@ -139,9 +139,13 @@ def quat_to_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
     if not n > 0 or not math.isfinite(n):
         raise ValueError(f"rotation quaternion ({x}, {y}, {z}, {w}) has no direction")
     x, y, z, w = x / n, y / n, z / n, w / n
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -180,7 +184,7 @@ def matrix_to_quat(rot: np.ndarray) -> tuple[float, float, float, float]:
     """
     m = np.asarray(rot, dtype=np.float64)
     if m.shape != (3, 3) or not np.all(np.isfinite(m)):
-        raise ValueError(f'rotation must be a finite (3, 3) matrix, got {m!r}')
+        raise ValueError(f"rotation must be a finite (3, 3) matrix, got {m!r}")
     tr = m[0, 0] + m[1, 1] + m[2, 2]
     cand = (tr, m[0, 0], m[1, 1], m[2, 2])
     k = int(np.argmax(cand))
@@ -199,7 +203,7 @@ def matrix_to_quat(rot: np.ndarray) -> tuple[float, float, float, float]:
     qa = np.array(q, dtype=np.float64)
     norm = float(np.linalg.norm(qa))
     if not norm > 0.0:
-        raise ValueError(f'not a rotation matrix: {m!r}')
+        raise ValueError(f"not a rotation matrix: {m!r}")
     qa /= norm
     if qa[3] < 0.0:
         qa = -qa
@@ -212,5 +216,9 @@ def rpy_to_quat(rpy: Sequence[float]) -> tuple[float, float, float, float]:
     if r == 0.0 and p == 0.0 and y == 0.0:
         return (0.0, 0.0, 0.0, 1.0)
     cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    return (sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy)
+    return (
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+        cr * cp * cy + sr * sp * sy,
+    )

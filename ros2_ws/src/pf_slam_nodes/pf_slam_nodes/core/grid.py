@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Optional, Tuple
 
 import numpy as np
 
@@ -19,10 +18,10 @@ from .config import GridConfig
 from .geometry import compose
 
 #: ``(row_min, row_max, col_min, col_max)``, half-open ``[min, max)``.
-Bounds = Tuple[int, int, int, int]
+Bounds = tuple[int, int, int, int]
 
 # |sensor position| (cells from the initial grid) beyond which a scan is not traced
-_MAX_COORD = float(2 ** 40)
+_MAX_COORD = float(2**40)
 
 
 def _world_to_cell(xy: np.ndarray, origin: np.ndarray, resolution: float) -> np.ndarray:
@@ -90,7 +89,7 @@ def from_occupancy(data: np.ndarray, resolution: float, origin) -> OccupancyMap:
     return OccupancyMap(arr.astype(np.int8, copy=False), float(resolution), o)
 
 
-def grid_geometry(cfg: GridConfig, center_xy: Optional[np.ndarray] = None) -> tuple[int, int, np.ndarray]:
+def grid_geometry(cfg: GridConfig, center_xy: np.ndarray | None = None) -> tuple[int, int, np.ndarray]:
     """``(height, width, origin_xy)`` of the grid for a config (centred on ``center_xy`` unless
     the config fixes the origin). The correlator uses it to mirror the mapper's grid."""
     res = float(cfg.resolution_m)
@@ -116,8 +115,9 @@ def _occupancy_values(log_odds: np.ndarray) -> np.ndarray:
 TILE_CELLS = 256
 
 
-def growth_plan(height: int, width: int, need: Bounds, max_cells: int,
-                tile: int = TILE_CELLS) -> Optional[tuple[int, int, int, int]]:
+def growth_plan(
+    height: int, width: int, need: Bounds, max_cells: int, tile: int = TILE_CELLS
+) -> tuple[int, int, int, int] | None:
     """Cells to add ``(top, bottom, left, right)`` (rows before row 0, rows after the last,
     columns before column 0, after the last) so that the rectangle ``need`` = ``(row_min,
     row_max, col_min, col_max)`` (half-open, in the grid's current cells) fits.
@@ -149,7 +149,7 @@ def grow_array(a: np.ndarray, add: tuple[int, int, int, int], fill) -> np.ndarra
     top, bottom, left, right = add
     h, w = a.shape
     out = np.full((h + top + bottom, w + left + right), fill, dtype=a.dtype)
-    out[top:top + h, left:left + w] = a
+    out[top : top + h, left : left + w] = a
     return out
 
 
@@ -189,7 +189,7 @@ class LogOddsGrid:
         Times the grid grew.
     """
 
-    def __init__(self, cfg: GridConfig, center_xy: Optional[np.ndarray] = None) -> None:
+    def __init__(self, cfg: GridConfig, center_xy: np.ndarray | None = None) -> None:
         self.cfg = cfg
         self.resolution = float(cfg.resolution_m)
         self.height, self.width, self.origin = grid_geometry(cfg, center_xy)
@@ -200,11 +200,11 @@ class LogOddsGrid:
         self.scans_beyond_bound = 0
         self.growths = 0
         #: ``(top, bottom, left, right)`` cells the last :meth:`integrate_scan` added, or None
-        self.last_growth: Optional[tuple[int, int, int, int]] = None
-        self._touched: Optional[list[int]] = None  # [rmin, rmax, cmin, cmax) of written cells
+        self.last_growth: tuple[int, int, int, int] | None = None
+        self._touched: list[int] | None = None  # [rmin, rmax, cmin, cmax) of written cells
         #: flat indices (row * width + col, may repeat) written by the last :meth:`integrate_scan`
         self.last_touched_idx = np.zeros(0, dtype=np.int64)
-        self.last_touched_bounds: Optional[Bounds] = None  # bounds of last_touched_idx
+        self.last_touched_bounds: Bounds | None = None  # bounds of last_touched_idx
 
     # ------------------------------------------------------------------ geometry
     def world_to_cell(self, xy: np.ndarray) -> np.ndarray:
@@ -240,11 +240,11 @@ class LogOddsGrid:
         return (c[..., 0] >= 0) & (c[..., 0] < self.width) & (c[..., 1] >= 0) & (c[..., 1] < self.height)
 
     @property
-    def touched_bounds(self) -> Optional[Bounds]:
+    def touched_bounds(self) -> Bounds | None:
         """``(row_min, row_max, col_min, col_max)`` (half-open) of all cells written so far, or None."""
         return None if self._touched is None else tuple(self._touched)  # type: ignore[return-value]
 
-    def window_bounds(self, center_xy: np.ndarray, half_size_m: float) -> Optional[Bounds]:
+    def window_bounds(self, center_xy: np.ndarray, half_size_m: float) -> Bounds | None:
         """Bounds of the square window around ``center_xy`` intersected with the written area.
 
         Returns None when the intersection is empty.
@@ -267,7 +267,7 @@ class LogOddsGrid:
         pose: np.ndarray,
         ranges: np.ndarray,
         angles: np.ndarray,
-        sensor_offset: Optional[np.ndarray] = None,
+        sensor_offset: np.ndarray | None = None,
         range_min_m: float = 0.0,
         range_max_m: float = math.inf,
     ) -> tuple[np.ndarray, np.ndarray]:
@@ -296,8 +296,9 @@ class LogOddsGrid:
         pose, r, a = _scan_arrays(pose, ranges, angles, sensor_offset)
         return self._beams(pose, r, a, range_min_m, range_max_m, flat=True)
 
-    def _beams(self, pose: np.ndarray, r: np.ndarray, a: np.ndarray, range_min_m: float,
-               range_max_m: float, flat: bool):
+    def _beams(
+        self, pose: np.ndarray, r: np.ndarray, a: np.ndarray, range_min_m: float, range_max_m: float, flat: bool
+    ):
         usable = float(self.cfg.range_max_usable_m)
         with np.errstate(invalid="ignore"):
             valid = ~np.isnan(r) & (r >= range_min_m) & (r > 0.0) & ((r <= range_max_m) | (r == np.inf))
@@ -360,6 +361,7 @@ class LogOddsGrid:
             norm = un * np.hypot(tx, ty)
             with np.errstate(invalid="ignore", divide="ignore"):
                 return np.where(norm > 0, norm / np.maximum(cross, 1e-12), 1.0)
+
         # the surface through the previous and the next hit's ends, where the three ends lie on one
         # line (within 5 degrees): a smooth wall, not a range jump at an edge or clutter
         tpx, tpy = np.zeros(h.size), np.zeros(h.size)
@@ -387,7 +389,7 @@ class LogOddsGrid:
         pose: np.ndarray,
         ranges: np.ndarray,
         angles: np.ndarray,
-        sensor_offset: Optional[np.ndarray] = None,
+        sensor_offset: np.ndarray | None = None,
         range_min_m: float = 0.0,
         range_max_m: float = math.inf,
     ) -> None:
@@ -436,13 +438,13 @@ class LogOddsGrid:
                 self._touched = [min(t[0], b[0]), max(t[1], b[1]), min(t[2], b[2]), max(t[3], b[3])]
 
     # ------------------------------------------------------------------ export
-    def _crop(self, bounds: Optional[Bounds]) -> np.ndarray:
+    def _crop(self, bounds: Bounds | None) -> np.ndarray:
         if bounds is None:
             return self.log_odds
         r0, r1, c0, c1 = bounds
         return self.log_odds[r0:r1, c0:c1]
 
-    def occupancy(self, bounds: Optional[Bounds] = None) -> np.ndarray:
+    def occupancy(self, bounds: Bounds | None = None) -> np.ndarray:
         """nav_msgs/OccupancyGrid data.
 
         Parameters
@@ -470,7 +472,7 @@ class LogOddsGrid:
         p = (occupied_threshold - 0.5) / 100.0
         return np.float32(math.log(p / (1.0 - p))) if p < 1.0 else np.float32(np.inf)
 
-    def occupied_mask(self, occupied_threshold: int, bounds: Optional[Bounds] = None) -> np.ndarray:
+    def occupied_mask(self, occupied_threshold: int, bounds: Bounds | None = None) -> np.ndarray:
         """Bool mask equal to ``occupancy(bounds) >= occupied_threshold``, computed in log-odds.
 
         Cheaper than :meth:`occupancy` (no exp); identical except for values within float32
@@ -485,14 +487,15 @@ class LogOddsGrid:
         lo = self.log_odds.reshape(-1)[flat_idx]
         return (lo >= self.occupied_limit(occupied_threshold)) & (lo != 0)
 
-    def bounds_origin(self, bounds: Optional[Bounds]) -> np.ndarray:
+    def bounds_origin(self, bounds: Bounds | None) -> np.ndarray:
         """World ``(x, y)`` of the corner of the first cell of ``bounds`` (m)."""
         if bounds is None:
             return self.origin.copy()
-        return self.anchor + self.resolution * (np.array([bounds[2], bounds[0]], dtype=np.int64)
-                                                - self.offset).astype(np.float64)
+        return self.anchor + self.resolution * (np.array([bounds[2], bounds[0]], dtype=np.int64) - self.offset).astype(
+            np.float64
+        )
 
-    def to_occupancy_map(self, bounds: Optional[Bounds] = None) -> OccupancyMap:
+    def to_occupancy_map(self, bounds: Bounds | None = None) -> OccupancyMap:
         """The (cropped) grid as an :class:`OccupancyMap` (what a ROS subscriber would get)."""
         return OccupancyMap(self.occupancy(bounds), self.resolution, self.bounds_origin(bounds))
 

@@ -17,17 +17,16 @@ as usual, and the following corrections (with resampling) decide between the hyp
 the weighted spread (position std and circular heading std); once both are below
 ``converged_xy_m`` / ``converged_yaw_rad`` the set is resampled to ``filter.num_particles``.
 """
+
 from __future__ import annotations
 
 import math
-from typing import Optional
 
 import cv2
 import numpy as np
 
 from .config import CorrelationConfig, LocalizationConfig
-from .correlation import (_REMAP_MAX_CELLS, LikelihoodField, _points_in_table, _use_remap,
-                          build_likelihood_field)
+from .correlation import _REMAP_MAX_CELLS, LikelihoodField, _points_in_table, _use_remap, build_likelihood_field
 from .filter import _resample_from_u, normalize_log_weights
 from .geometry import wrap_angle
 
@@ -46,8 +45,7 @@ def free_mask(occupancy: np.ndarray) -> np.ndarray:
     return (occ >= 0) & (occ <= FREE_MAX)
 
 
-def sample_free_poses(free: np.ndarray, resolution: float, origin, n: int,
-                      rng: np.random.Generator) -> np.ndarray:
+def sample_free_poses(free: np.ndarray, resolution: float, origin, n: int, rng: np.random.Generator) -> np.ndarray:
     """``(n, 3)`` poses uniform over the free cells (uniform within a cell) with uniform heading."""
     idx = np.flatnonzero(np.asarray(free, dtype=bool).reshape(-1))
     if idx.size == 0:
@@ -93,16 +91,18 @@ def coarse_scores(poses: np.ndarray, points: np.ndarray, field: LikelihoodField)
     chunk = max(1, min(_REMAP_MAX_CELLS - 1, _CHUNK_ELEMENTS // m))
     clamp = float(field.min_log_likelihood)
     for i0 in range(0, n, chunk):
-        p = poses[i0:i0 + chunk]
+        p = poses[i0 : i0 + chunk]
         if remap:
             u, v, _, _ = _points_in_table(p, pts, field, np.float32)
-            vals = cv2.remap(field._loglik, u, v, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
-                             borderValue=clamp)
+            vals = cv2.remap(field._loglik, u, v, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=clamp)
         else:  # a table too large for remap (32,000 cells or more on a side): index arithmetic
             c, s = np.cos(p[:, 2:3]), np.sin(p[:, 2:3])
-            vals = field.lookup(np.stack([p[:, 0:1] + c * pts[:, 0] - s * pts[:, 1],
-                                          p[:, 1:2] + s * pts[:, 0] + c * pts[:, 1]], axis=-1))
-        out[i0:i0 + chunk] = vals.sum(axis=1, dtype=np.float64)
+            vals = field.lookup(
+                np.stack(
+                    [p[:, 0:1] + c * pts[:, 0] - s * pts[:, 1], p[:, 1:2] + s * pts[:, 0] + c * pts[:, 1]], axis=-1
+                )
+            )
+        out[i0 : i0 + chunk] = vals.sum(axis=1, dtype=np.float64)
     return out
 
 
@@ -134,18 +134,20 @@ class Localizer:
     cfg : LocalizationConfig
     """
 
-    def __init__(self, occupancy: np.ndarray, resolution: float, origin, corr_cfg: CorrelationConfig,
-                 cfg: LocalizationConfig) -> None:
+    def __init__(
+        self, occupancy: np.ndarray, resolution: float, origin, corr_cfg: CorrelationConfig, cfg: LocalizationConfig
+    ) -> None:
         occ = np.asarray(occupancy)
         self.cfg = cfg
         self.resolution = float(resolution)
         self.origin = np.asarray(origin, dtype=np.float64).reshape(-1)[:2].copy()
         self.free = free_mask(occ)
-        self.free_area_m2 = float(self.free.sum()) * self.resolution ** 2
+        self.free_area_m2 = float(self.free.sum()) * self.resolution**2
         if self.free_area_m2 <= 0:
             raise ValueError("the map has no free cell (occupancy 0): nowhere to localize")
-        self.coarse = build_likelihood_field(occ, self.resolution, cfg.coarse_sigma_m, corr_cfg.occupied_threshold,
-                                             self.origin, 3.0 * cfg.coarse_sigma_m)
+        self.coarse = build_likelihood_field(
+            occ, self.resolution, cfg.coarse_sigma_m, corr_cfg.occupied_threshold, self.origin, 3.0 * cfg.coarse_sigma_m
+        )
 
     @property
     def global_candidates(self) -> int:
@@ -191,8 +193,9 @@ class Localizer:
         return sxy <= self.cfg.converged_xy_m and syaw <= self.cfg.converged_yaw_rad
 
     @staticmethod
-    def reduce(particles: np.ndarray, log_weights: np.ndarray, n: int,
-               rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    def reduce(
+        particles: np.ndarray, log_weights: np.ndarray, n: int, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Resample a set to ``n`` particles (stratified, by weight; uniform weights)."""
         idx = _resample_from_u(log_weights, (np.arange(n) + rng.random(n)) / n)
         return np.asarray(particles)[idx].copy(), np.full(n, -math.log(n))
@@ -200,15 +203,24 @@ class Localizer:
 
 def initial_cov(cfg: LocalizationConfig) -> np.ndarray:
     """``(3, 3)`` covariance of the parameter-given initial pose (diagonal)."""
-    return np.diag([cfg.initial_sigma_xy_m ** 2, cfg.initial_sigma_xy_m ** 2, cfg.initial_sigma_yaw_rad ** 2])
+    return np.diag([cfg.initial_sigma_xy_m**2, cfg.initial_sigma_xy_m**2, cfg.initial_sigma_yaw_rad**2])
 
 
-def pending_from_config(cfg: LocalizationConfig) -> tuple[Optional[np.ndarray], Optional[np.ndarray]]:
+def pending_from_config(cfg: LocalizationConfig) -> tuple[np.ndarray | None, np.ndarray | None]:
     """The initialisation the parameters ask for: ``(mean, cov)`` or ``(None, None)`` (global)."""
     if not cfg.use_initial_pose:
         return None, None
     return np.array([cfg.initial_pose_x_m, cfg.initial_pose_y_m, cfg.initial_pose_yaw_rad]), initial_cov(cfg)
 
 
-__all__ = ["FREE_MAX", "Localizer", "coarse_scores", "free_mask", "initial_cov", "pending_from_config",
-           "sample_free_poses", "sample_gaussian_poses", "spread"]
+__all__ = [
+    "FREE_MAX",
+    "Localizer",
+    "coarse_scores",
+    "free_mask",
+    "initial_cov",
+    "pending_from_config",
+    "sample_free_poses",
+    "sample_gaussian_poses",
+    "spread",
+]

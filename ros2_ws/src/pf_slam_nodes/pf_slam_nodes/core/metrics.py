@@ -22,18 +22,18 @@ import numpy as np
 from .geometry import relative_pose, wrap_angle
 
 __all__ = [
-    'RELATION_MAX_DT',
-    'align_se2',
-    'apply_se2',
-    'associate',
-    'ate',
-    'format_evaluation',
-    'match_stamps',
-    'relations_error',
-    'relative_se2',
-    'rpe',
-    'trajectory_errors',
-    'wrap_angle',
+    "RELATION_MAX_DT",
+    "align_se2",
+    "apply_se2",
+    "associate",
+    "ate",
+    "format_evaluation",
+    "match_stamps",
+    "relations_error",
+    "relative_se2",
+    "rpe",
+    "trajectory_errors",
+    "wrap_angle",
 ]
 
 #: Default stamp tolerance (s) for matching relation stamps to trajectory stamps.
@@ -51,7 +51,7 @@ RELATION_MAX_DT = 1e-5
 def _poses(p: np.ndarray, name: str) -> np.ndarray:
     a = np.asarray(p, dtype=np.float64)
     if a.ndim != 2 or a.shape[1] != 3:
-        raise ValueError(f'{name} must have shape (K, 3), got {a.shape}')
+        raise ValueError(f"{name} must have shape (K, 3), got {a.shape}")
     return a
 
 
@@ -91,7 +91,7 @@ def align_se2(est_xy: np.ndarray, gt_xy: np.ndarray) -> tuple[float, np.ndarray]
     e = np.asarray(est_xy, dtype=np.float64)[:, :2]
     g = np.asarray(gt_xy, dtype=np.float64)[:, :2]
     if e.shape != g.shape or len(e) == 0:
-        raise ValueError(f'est_xy {e.shape} and gt_xy {g.shape} must be equal, non-empty')
+        raise ValueError(f"est_xy {e.shape} and gt_xy {g.shape} must be equal, non-empty")
     me, mg = e.mean(axis=0), g.mean(axis=0)
     ec, gc = e - me, g - mg
     # For 2D, the SVD solution reduces to the angle of sum(conj(e) * g) in complex form.
@@ -111,9 +111,9 @@ def match_stamps(query: np.ndarray, stamps: np.ndarray, max_dt: float) -> np.nda
     out = np.full(q.shape, -1, dtype=np.int64)
     if len(s) == 0 or len(q) == 0:
         return out
-    order = np.argsort(s, kind='stable')
+    order = np.argsort(s, kind="stable")
     ss = s[order]
-    hi = np.clip(np.searchsorted(ss, q, side='left'), 0, len(ss) - 1)
+    hi = np.clip(np.searchsorted(ss, q, side="left"), 0, len(ss) - 1)
     lo = np.clip(hi - 1, 0, len(ss) - 1)
     d_hi, d_lo = np.abs(ss[hi] - q), np.abs(ss[lo] - q)
     best = np.where(d_lo <= d_hi, lo, hi)
@@ -123,8 +123,7 @@ def match_stamps(query: np.ndarray, stamps: np.ndarray, max_dt: float) -> np.nda
     return out
 
 
-def associate(est_stamps: np.ndarray, gt_stamps: np.ndarray,
-              max_dt: float = 0.02) -> np.ndarray:
+def associate(est_stamps: np.ndarray, gt_stamps: np.ndarray, max_dt: float = 0.02) -> np.ndarray:
     """One-to-one nearest-time association.
 
     Returns
@@ -145,15 +144,20 @@ def associate(est_stamps: np.ndarray, gt_stamps: np.ndarray,
     _, first = np.unique(j[order], return_index=True)
     keep = order[first]
     pairs = np.column_stack([i[keep], j[keep]]).astype(np.int64)
-    return pairs[np.argsort(pairs[:, 0], kind='stable')]
+    return pairs[np.argsort(pairs[:, 0], kind="stable")]
 
 
 def _stats(x: np.ndarray) -> dict:
     if len(x) == 0:
-        nan = float('nan')
-        return {'rmse': nan, 'mean': nan, 'median': nan, 'std': nan, 'max': nan}
-    return {'rmse': float(np.sqrt(np.mean(x * x))), 'mean': float(np.mean(x)),
-            'median': float(np.median(x)), 'std': float(np.std(x)), 'max': float(np.max(x))}
+        nan = float("nan")
+        return {"rmse": nan, "mean": nan, "median": nan, "std": nan, "max": nan}
+    return {
+        "rmse": float(np.sqrt(np.mean(x * x))),
+        "mean": float(np.mean(x)),
+        "median": float(np.median(x)),
+        "std": float(np.std(x)),
+        "max": float(np.max(x)),
+    }
 
 
 def ate(est: np.ndarray, gt: np.ndarray) -> dict:
@@ -171,18 +175,22 @@ def ate(est: np.ndarray, gt: np.ndarray) -> dict:
         heading error after alignment; ``n``; ``align_theta`` (rad) and ``align_t`` (m) of
         the alignment.
     """
-    e, g = _poses(est, 'est'), _poses(gt, 'gt')
+    e, g = _poses(est, "est"), _poses(gt, "gt")
     if e.shape != g.shape:
-        raise ValueError(f'est {e.shape} and gt {g.shape} must have the same shape')
+        raise ValueError(f"est {e.shape} and gt {g.shape} must have the same shape")
     if len(e) == 0:
-        raise ValueError('ate needs at least one associated pose')
+        raise ValueError("ate needs at least one associated pose")
     theta, t = align_se2(e[:, :2], g[:, :2])
     a = apply_se2(theta, t, e)
     err = np.hypot(a[:, 0] - g[:, 0], a[:, 1] - g[:, 1])
     rot = np.degrees(np.abs(wrap_angle(a[:, 2] - g[:, 2])))
     out = _stats(err)
-    out.update(rot_rmse_deg=float(np.sqrt(np.mean(rot * rot))), n=int(len(e)),
-               align_theta=float(theta), align_t=[float(t[0]), float(t[1])])
+    out.update(
+        rot_rmse_deg=float(np.sqrt(np.mean(rot * rot))),
+        n=int(len(e)),
+        align_theta=float(theta),
+        align_t=[float(t[0]), float(t[1])],
+    )
     return out
 
 
@@ -194,28 +202,36 @@ def rpe(est: np.ndarray, gt: np.ndarray, delta: int = 1) -> dict:
     dict
         ``trans_rmse``, ``trans_mean`` (m), ``rot_rmse_deg``, ``rot_mean_deg`` (deg), ``n``.
     """
-    e, g = _poses(est, 'est'), _poses(gt, 'gt')
+    e, g = _poses(est, "est"), _poses(gt, "gt")
     if e.shape != g.shape:
-        raise ValueError(f'est {e.shape} and gt {g.shape} must have the same shape')
+        raise ValueError(f"est {e.shape} and gt {g.shape} must have the same shape")
     if delta < 1:
-        raise ValueError(f'delta must be >= 1, got {delta}')
+        raise ValueError(f"delta must be >= 1, got {delta}")
     n = len(e) - delta
     if n <= 0:
-        nan = float('nan')
-        return {'trans_rmse': nan, 'trans_mean': nan, 'rot_rmse_deg': nan, 'rot_mean_deg': nan,
-                'n': 0}
+        nan = float("nan")
+        return {"trans_rmse": nan, "trans_mean": nan, "rot_rmse_deg": nan, "rot_mean_deg": nan, "n": 0}
     d_est = relative_se2(e[:-delta], e[delta:])
     d_gt = relative_se2(g[:-delta], g[delta:])
     err = relative_se2(d_gt, d_est)
     tr = np.hypot(err[:, 0], err[:, 1])
     rot = np.degrees(np.abs(err[:, 2]))
-    return {'trans_rmse': float(np.sqrt(np.mean(tr * tr))), 'trans_mean': float(tr.mean()),
-            'rot_rmse_deg': float(np.sqrt(np.mean(rot * rot))), 'rot_mean_deg': float(rot.mean()),
-            'n': int(n)}
+    return {
+        "trans_rmse": float(np.sqrt(np.mean(tr * tr))),
+        "trans_mean": float(tr.mean()),
+        "rot_rmse_deg": float(np.sqrt(np.mean(rot * rot))),
+        "rot_mean_deg": float(rot.mean()),
+        "n": int(n),
+    }
 
 
-def relations_error(est_stamps: np.ndarray, est_poses: np.ndarray, rel_stamps: np.ndarray,
-                    rel_delta: np.ndarray, max_dt: float = RELATION_MAX_DT) -> dict:
+def relations_error(
+    est_stamps: np.ndarray,
+    est_poses: np.ndarray,
+    rel_stamps: np.ndarray,
+    rel_delta: np.ndarray,
+    max_dt: float = RELATION_MAX_DT,
+) -> dict:
     """Kümmerle et al. (2009) relation-based error of a trajectory.
 
     Parameters
@@ -238,11 +254,11 @@ def relations_error(est_stamps: np.ndarray, est_poses: np.ndarray, rel_stamps: n
         ``rot_max_deg`` (deg), ``trans_sq_mean`` (m^2), ``rot_sq_mean_deg`` (deg^2),
         ``n_used``, ``n_total``. Means are NaN when no relation could be matched.
     """
-    p = _poses(est_poses, 'est_poses')
+    p = _poses(est_poses, "est_poses")
     rs = np.asarray(rel_stamps, dtype=np.float64).reshape(-1, 2)
-    rd = _poses(rel_delta, 'rel_delta')
+    rd = _poses(rel_delta, "rel_delta")
     if len(rs) != len(rd):
-        raise ValueError(f'rel_stamps has {len(rs)} rows but rel_delta has {len(rd)}')
+        raise ValueError(f"rel_stamps has {len(rs)} rows but rel_delta has {len(rd)}")
     i1 = match_stamps(rs[:, 0], est_stamps, max_dt)
     i2 = match_stamps(rs[:, 1], est_stamps, max_dt)
     ok = (i1 >= 0) & (i2 >= 0)
@@ -250,20 +266,29 @@ def relations_error(est_stamps: np.ndarray, est_poses: np.ndarray, rel_stamps: n
     err = relative_se2(rd[ok], est_rel)  # delta*^-1 * delta
     tr = np.hypot(err[:, 0], err[:, 1])
     rot = np.degrees(np.abs(err[:, 2]))
-    nan = float('nan')
+    nan = float("nan")
     n = int(ok.sum())
 
     def m(x: np.ndarray, f) -> float:
         return float(f(x)) if n else nan
 
-    return {'trans_mean': m(tr, np.mean), 'trans_std': m(tr, np.std), 'trans_max': m(tr, np.max),
-            'rot_mean_deg': m(rot, np.mean), 'rot_std_deg': m(rot, np.std),
-            'rot_max_deg': m(rot, np.max), 'trans_sq_mean': m(tr * tr, np.mean),
-            'rot_sq_mean_deg': m(rot * rot, np.mean), 'n_used': n, 'n_total': int(len(rs))}
+    return {
+        "trans_mean": m(tr, np.mean),
+        "trans_std": m(tr, np.std),
+        "trans_max": m(tr, np.max),
+        "rot_mean_deg": m(rot, np.mean),
+        "rot_std_deg": m(rot, np.std),
+        "rot_max_deg": m(rot, np.max),
+        "trans_sq_mean": m(tr * tr, np.mean),
+        "rot_sq_mean_deg": m(rot * rot, np.mean),
+        "n_used": n,
+        "n_total": int(len(rs)),
+    }
 
 
-def trajectory_errors(t_est: np.ndarray, p_est: np.ndarray, t_gt: np.ndarray, p_gt: np.ndarray,
-                      max_dt: float = 0.02, rpe_delta: int = 1) -> dict:
+def trajectory_errors(
+    t_est: np.ndarray, p_est: np.ndarray, t_gt: np.ndarray, p_gt: np.ndarray, max_dt: float = 0.02, rpe_delta: int = 1
+) -> dict:
     """ATE and RPE of an estimate against a reference trajectory, after the one-to-one
     nearest-time association within ``max_dt`` (s).
 
@@ -274,13 +299,21 @@ def trajectory_errors(t_est: np.ndarray, p_est: np.ndarray, t_gt: np.ndarray, p_
     out: dict = dict(n_gt=int(len(t_gt)), n_associated=int(len(pairs)), max_dt=float(max_dt))
     if len(pairs):
         e, g = p_est[pairs[:, 0]], p_gt[pairs[:, 1]]
-        out['ate'] = ate(e, g)
-        out['rpe'] = rpe(e, g, delta=rpe_delta)
+        out["ate"] = ate(e, g)
+        out["rpe"] = rpe(e, g, delta=rpe_delta)
     return out
 
 
-def map_f1(est_occ: np.ndarray, est_res: float, est_origin, gt_occ: np.ndarray, gt_res: float,
-           gt_origin, tolerance_m: float = 0.3, occupied: int = 65) -> dict:
+def map_f1(
+    est_occ: np.ndarray,
+    est_res: float,
+    est_origin,
+    gt_occ: np.ndarray,
+    gt_res: float,
+    gt_origin,
+    tolerance_m: float = 0.3,
+    occupied: int = 65,
+) -> dict:
     """Occupied-cell precision / recall / F1 of an estimated map against a ground-truth map.
 
     Both maps are ``(H, W)`` int8 nav_msgs/OccupancyGrid values (-1 unknown, 0..100), row 0 =
@@ -337,34 +370,50 @@ def map_f1(est_occ: np.ndarray, est_res: float, est_origin, gt_occ: np.ndarray, 
     precision = tp_est / n_est if n_est else 0.0
     recall = tp_ref / n_ref if n_ref else 0.0
     f1 = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
-    return {'precision': precision, 'recall': recall, 'f1': f1, 'tolerance_m': tol,
-            'est_occupied_cells': n_est, 'observed_edge_cells': n_ref}
+    return {
+        "precision": precision,
+        "recall": recall,
+        "f1": f1,
+        "tolerance_m": tol,
+        "est_occupied_cells": n_est,
+        "observed_edge_cells": n_ref,
+    }
 
 
 def format_evaluation(res: dict) -> str:
     """Human-readable lines for ``pf-slam eval`` (of :func:`pf_slam_nodes.io.evaluation.evaluate`)."""
-    lines = [f"estimate: {res['est']} ({res['n_est']} poses)"] if 'est' in res else []
-    if 'gt' in res:
-        lines.append(f"reference: {res['gt']} ({res['n_gt']} poses), associated "
-                     f"{res['n_associated']} within {res['max_dt'] * 1e3:.0f} ms")
-        if 'ate' in res:
-            a, r = res['ate'], res['rpe']
-            lines.append(f"ATE  rmse {a['rmse']:.4f} m  mean {a['mean']:.4f}  median "
-                         f"{a['median']:.4f}  max {a['max']:.4f}  (heading rmse "
-                         f"{a['rot_rmse_deg']:.2f} deg)")
-            lines.append(f"RPE  trans rmse {r['trans_rmse']:.4f} m  mean {r['trans_mean']:.4f}"
-                         f"  rot mean {r['rot_mean_deg']:.3f} deg  (n={r['n']})")
+    lines = [f"estimate: {res['est']} ({res['n_est']} poses)"] if "est" in res else []
+    if "gt" in res:
+        lines.append(
+            f"reference: {res['gt']} ({res['n_gt']} poses), associated "
+            f"{res['n_associated']} within {res['max_dt'] * 1e3:.0f} ms"
+        )
+        if "ate" in res:
+            a, r = res["ate"], res["rpe"]
+            lines.append(
+                f"ATE  rmse {a['rmse']:.4f} m  mean {a['mean']:.4f}  median "
+                f"{a['median']:.4f}  max {a['max']:.4f}  (heading rmse "
+                f"{a['rot_rmse_deg']:.2f} deg)"
+            )
+            lines.append(
+                f"RPE  trans rmse {r['trans_rmse']:.4f} m  mean {r['trans_mean']:.4f}"
+                f"  rot mean {r['rot_mean_deg']:.3f} deg  (n={r['n']})"
+            )
         else:
-            lines.append('ATE/RPE: no pose could be associated')
-    if 'map' in res:
-        m = res['map']
-        lines.append(f"map ({res['map_gt']}): occupied-cell F1 {m['f1']:.3f}  precision "
-                     f"{m['precision']:.3f}  recall {m['recall']:.3f}  (tolerance "
-                     f"{m['tolerance_m']:.2f} m, {m['est_occupied_cells']} occupied cells, "
-                     f"{m['observed_edge_cells']} observed edge cells)")
-    if 'relations' in res:
-        q = res['relations']
+            lines.append("ATE/RPE: no pose could be associated")
+    if "map" in res:
+        m = res["map"]
+        lines.append(
+            f"map ({res['map_gt']}): occupied-cell F1 {m['f1']:.3f}  precision "
+            f"{m['precision']:.3f}  recall {m['recall']:.3f}  (tolerance "
+            f"{m['tolerance_m']:.2f} m, {m['est_occupied_cells']} occupied cells, "
+            f"{m['observed_edge_cells']} observed edge cells)"
+        )
+    if "relations" in res:
+        q = res["relations"]
         lines.append(f"relations ({res['relations_file']}): used {q['n_used']}/{q['n_total']}")
-        lines.append(f"  translational {q['trans_mean']:.4f} +- {q['trans_std']:.4f} m   "
-                     f"rotational {q['rot_mean_deg']:.3f} +- {q['rot_std_deg']:.3f} deg")
-    return '\n'.join(lines)
+        lines.append(
+            f"  translational {q['trans_mean']:.4f} +- {q['trans_std']:.4f} m   "
+            f"rotational {q['rot_mean_deg']:.3f} +- {q['rot_std_deg']:.3f} deg"
+        )
+    return "\n".join(lines)

@@ -11,6 +11,7 @@ import math
 import numpy as np
 
 from .config import DiffDriveConfig, OdometryMotionConfig
+
 # the SE(2) pose algebra lives in geometry.py; re-exported here, where the motion models use it
 from .geometry import _wrap, compose, relative_pose, wrap_angle  # noqa: F401
 

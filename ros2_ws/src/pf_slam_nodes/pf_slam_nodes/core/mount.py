@@ -11,6 +11,7 @@ the ground) are dropped there; :func:`kept_fraction` says how much of a scan is 
 below ``laser.min_kept_fraction`` is *mostly floor* (the head looks down): it is posed from
 odometry, neither corrected nor mapped with, and counted (``faults.scan_mostly_floor``).
 """
+
 from __future__ import annotations
 
 import bisect
@@ -69,15 +70,16 @@ class MountBuffer:
         x, y, z, w = (float(v) for v in quat_xyzw)
         t = tuple(float(v) for v in translation)
         n = math.sqrt(x * x + y * y + z * z + w * w)
-        if not (math.isfinite(n) and n > 1e-9 and len(t) == 3 and all(math.isfinite(v) for v in t)) \
-                or (self.stamps and stamp < self.stamps[-1]):
+        if not (math.isfinite(n) and n > 1e-9 and len(t) == 3 and all(math.isfinite(v) for v in t)) or (
+            self.stamps and stamp < self.stamps[-1]
+        ):
             self.out_of_order += 1
             return
         self.stamps.append(int(stamp))
         self.quats.append((x / n, y / n, z / n, w / n))
         self.trans.append(t)
         if len(self.stamps) > 2 * self.keep:
-            del self.stamps[:self.keep], self.quats[:self.keep], self.trans[:self.keep]
+            del self.stamps[: self.keep], self.quats[: self.keep], self.trans[: self.keep]
 
     def covers(self, stamp: int) -> bool:
         return bool(self.stamps) and self.stamps[-1] >= stamp
@@ -124,8 +126,9 @@ def base_points(ranges: np.ndarray, angles: np.ndarray, extrinsic) -> np.ndarray
         return ext[:9].reshape(3, 3) @ local + ext[9:, None]
 
 
-def kept_fraction(ranges: np.ndarray, angles: np.ndarray, laser, extrinsic,
-                  range_min: float = 0.0, range_max: float = math.inf) -> float:
+def kept_fraction(
+    ranges: np.ndarray, angles: np.ndarray, laser, extrinsic, range_min: float = 0.0, range_max: float = math.inf
+) -> float:
     """The fraction of a scan's returns (finite, within its own limits and ``laser``'s range
     gate) that survive the height gate (``laser.min_height_m`` .. ``max_height_m`` in the base
     frame) with the mount ``extrinsic`` (12): 1.0 for a scan without returns (nothing to judge)."""
@@ -141,11 +144,12 @@ def kept_fraction(ranges: np.ndarray, angles: np.ndarray, laser, extrinsic,
     return float(kept.sum()) / n
 
 
-def mounted_scan(ranges: np.ndarray, angles: np.ndarray, laser, extrinsic, range_min: float = 0.0,
-                 range_max: float = math.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def mounted_scan(
+    ranges: np.ndarray, angles: np.ndarray, laser, extrinsic, range_min: float = 0.0, range_max: float = math.inf
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`planar_scan` with the mount ``extrinsic`` (12) of this scan in place of the
     configured one: ``(ranges, angles, offset)`` in the base frame, floor returns dropped."""
     import dataclasses
+
     ext = tuple(float(v) for v in np.asarray(extrinsic, dtype=np.float64).reshape(12))
-    return planar_scan(ranges, angles, dataclasses.replace(laser, extrinsic=ext), np.zeros(3),
-                       range_min, range_max)
+    return planar_scan(ranges, angles, dataclasses.replace(laser, extrinsic=ext), np.zeros(3), range_min, range_max)

@@ -2,11 +2,11 @@
 
 ROS-free so that the predictor node stays thin and the pairing rules are unit-tested.
 """
+
 from __future__ import annotations
 
 import math
 from collections import defaultdict
-from typing import Optional
 
 import numpy as np
 
@@ -54,15 +54,15 @@ class OdometryBuffer:
             raise ValueError(f"odom_sync must be 'exact' or 'interpolate', got {sync!r}")
         self.sync = sync
         self._stamps: list[int] = []
-        self._poses: list[Optional[np.ndarray]] = []  # None: a bad message (kept for its stamp)
+        self._poses: list[np.ndarray | None] = []  # None: a bad message (kept for its stamp)
         self._exact: dict[int, list[int]] = defaultdict(list)
         self._scan_seen: dict[int, int] = defaultdict(int)
         self._cursor = 0
         self._dropped = 0  # messages trimmed off the front (received = dropped + len)
         self.backward_steps = 0
         self.missing = 0
-        self.progress_ns: Optional[int] = None  # the latest stamp of any message, good or bad
-        self.fallback: Optional[dict] = None
+        self.progress_ns: int | None = None  # the latest stamp of any message, good or bad
+        self.fallback: dict | None = None
         self.last_missing = self.peek_missing = False
         self._unpaired: list[int] = []  # exact: stamps of the scans just resolved without a partner
 
@@ -74,7 +74,7 @@ class OdometryBuffer:
         """Messages added so far (good and bad), trimmed ones included."""
         return self._dropped + len(self._stamps)
 
-    def add(self, stamp_ns: int, pose: Optional[np.ndarray]) -> None:
+    def add(self, stamp_ns: int, pose: np.ndarray | None) -> None:
         stamp_ns = int(stamp_ns)
         if self._stamps and stamp_ns < self._stamps[-1]:
             self.backward_steps += 1
@@ -88,16 +88,16 @@ class OdometryBuffer:
         self.add(stamp_ns, None)
 
     @property
-    def last(self) -> Optional[np.ndarray]:
+    def last(self) -> np.ndarray | None:
         i = self._good_at_or_before(len(self._poses) - 1)
         return None if i is None else self._poses[i]
 
-    def _good_at_or_before(self, i: int) -> Optional[int]:
+    def _good_at_or_before(self, i: int) -> int | None:
         while i >= 0 and self._poses[i] is None:
             i -= 1
         return i if i >= 0 else None
 
-    def _nearest_good(self, i: int) -> Optional[np.ndarray]:
+    def _nearest_good(self, i: int) -> np.ndarray | None:
         """The good pose at or before index i, else the first good one after it."""
         j = self._good_at_or_before(min(i, len(self._poses) - 1))
         if j is None:
@@ -124,7 +124,7 @@ class OdometryBuffer:
             seen[t] += 1
         return False
 
-    def no_partner(self, stamps: list) -> Optional[tuple[int, int]]:
+    def no_partner(self, stamps: list) -> tuple[int, int] | None:
         """Exact: is the pairing impossible for this input? ``stamps``: the queued scans' stamps,
         head first (None: a scan without one). True evidence, not a delay: at least
         ``NO_PARTNER_SCANS`` scans (the queued ones and those just resolved without a partner,
@@ -140,7 +140,7 @@ class OdometryBuffer:
         if len(covered) < self.NO_PARTNER_SCANS or any(self.has_exact(t) for t in covered):
             return None
         lo, hi = min(covered), max(covered)
-        between = sum(1 for t in self._stamps[-self.NO_PARTNER_LOOK:] if lo < t < hi)
+        between = sum(1 for t in self._stamps[-self.NO_PARTNER_LOOK :] if lo < t < hi)
         return (len(covered), between) if between >= self.NO_PARTNER_BETWEEN else None
 
     def fall_back(self, **why) -> None:
@@ -150,13 +150,13 @@ class OdometryBuffer:
             self.fallback = dict(why)
             self._cursor = 0  # stamps are searched from the start once, then the cursor moves on
 
-    def peek(self, stamp_ns: int, final: bool = False) -> Optional[np.ndarray]:
+    def peek(self, stamp_ns: int, final: bool = False) -> np.ndarray | None:
         """What :meth:`lookup` would return now, without consuming anything (``peek_missing``:
         whether it would count as missing)."""
         pose, self.peek_missing = self._resolve(stamp_ns, final, commit=False)
         return pose
 
-    def lookup(self, stamp_ns: int, final: bool = False) -> Optional[np.ndarray]:
+    def lookup(self, stamp_ns: int, final: bool = False) -> np.ndarray | None:
         """Odometry pose at a scan stamp, or None when it has not arrived yet.
 
         Call once per scan, in scan order (the exact rule counts occurrences). With
@@ -170,11 +170,17 @@ class OdometryBuffer:
             self.missing += int(missing)
         return pose
 
-    def _next_good(self, i: int, after_ns: Optional[int] = None) -> Optional[int]:
+    def _next_good(self, i: int, after_ns: int | None = None) -> int | None:
         """Index of the first good pose after index i (stream order; stamped after ``after_ns``
         if given), or None (not arrived yet)."""
-        return next((k for k in range(i + 1, len(self._poses)) if self._poses[k] is not None
-                     and (after_ns is None or self._stamps[k] > after_ns)), None)
+        return next(
+            (
+                k
+                for k in range(i + 1, len(self._poses))
+                if self._poses[k] is not None and (after_ns is None or self._stamps[k] > after_ns)
+            ),
+            None,
+        )
 
     #: a scan interpolated from odometry more than this far away on both sides lies in a gap of
     #: the odometry: its pose is a guess (counted as missing)
@@ -183,7 +189,7 @@ class OdometryBuffer:
     def _in_gap(self, stamp_ns: int, i: int, k: int) -> bool:
         return min(stamp_ns - self._stamps[i], self._stamps[k] - stamp_ns) > self.GAP_MIN_NS
 
-    def _between(self, stamp_ns: int, i: Optional[int], k: Optional[int]) -> Optional[np.ndarray]:
+    def _between(self, stamp_ns: int, i: int | None, k: int | None) -> np.ndarray | None:
         """Interpolation between the good poses i and k when the stamp lies strictly between
         their stamps, else None."""
         if i is None or k is None:
@@ -197,7 +203,7 @@ class OdometryBuffer:
         out[2] = float(wrap_angle(p0[2] + a * float(wrap_angle(p1[2] - p0[2]))))
         return out
 
-    def _resolve(self, stamp_ns: int, final: bool, commit: bool) -> tuple[Optional[np.ndarray], bool]:
+    def _resolve(self, stamp_ns: int, final: bool, commit: bool) -> tuple[np.ndarray | None, bool]:
         """(pose or None, whether the scan's own odometry was missing)."""
         if not self._stamps:
             return (np.zeros(3), True) if final else (None, False)
@@ -225,7 +231,7 @@ class OdometryBuffer:
             if commit:
                 self._scan_seen[stamp_ns] += 1
                 if n >= len(hits):  # no partner at all (not a bad one): evidence for no_partner
-                    self._unpaired = self._unpaired[-self.NO_PARTNER_SCANS:] + [stamp_ns]
+                    self._unpaired = self._unpaired[-self.NO_PARTNER_SCANS :] + [stamp_ns]
             return (np.zeros(3) if pose is None else pose), True
         # interpolate: first odometry message at or after the stamp, from the cursor on
         j = self._cursor
@@ -284,11 +290,20 @@ class WheelOdometryIntegrator:
     tick in one step while creeping) only get the zero yaw.
     """
 
-    def __init__(self, left_diameter_m: float, right_diameter_m: float, wheel_base_m: float,
-                 max_speed_mps: float = math.inf, gyro_rest_bias: bool = False,
-                 rest_min_s: float = 0.5) -> None:
-        for name, v in (("left_diameter_m", left_diameter_m), ("right_diameter_m", right_diameter_m),
-                        ("wheel_base_m", wheel_base_m)):
+    def __init__(
+        self,
+        left_diameter_m: float,
+        right_diameter_m: float,
+        wheel_base_m: float,
+        max_speed_mps: float = math.inf,
+        gyro_rest_bias: bool = False,
+        rest_min_s: float = 0.5,
+    ) -> None:
+        for name, v in (
+            ("left_diameter_m", left_diameter_m),
+            ("right_diameter_m", right_diameter_m),
+            ("wheel_base_m", wheel_base_m),
+        ):
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be > 0, got {v!r}")
         self.left_diameter_m = float(left_diameter_m)
@@ -301,11 +316,11 @@ class WheelOdometryIntegrator:
             raise ValueError(f"rest_min_s must be > 0, got {rest_min_s!r}")
         self.gyro_rest_bias = bool(gyro_rest_bias)
         self.rest_min_s = float(rest_min_s)
-        self._run_yaw = self._run_s = 0.0    # the current rest run: gyro yaw and length
+        self._run_yaw = self._run_s = 0.0  # the current rest run: gyro yaw and length
         self._bias_yaw = self._bias_s = 0.0  # the finished rests of rest_min_s or longer
         self.jumps = 0
         self.pose = np.zeros(3)
-        self._last: Optional[tuple[float, float]] = None
+        self._last: tuple[float, float] | None = None
         self._pending_gyro_yaw = 0.0
         self.use_gyro = False
 
@@ -332,7 +347,7 @@ class WheelOdometryIntegrator:
         """Rest time the bias estimate is based on (s)."""
         return self._rest()[1]
 
-    def _gyro_yaw(self, yaw: float, rest: bool, dt_s: Optional[float]) -> float:
+    def _gyro_yaw(self, yaw: float, rest: bool, dt_s: float | None) -> float:
         """A step's yaw from the gyro's increments: zero at rest, bias-corrected when moving."""
         if not self.gyro_rest_bias or dt_s is None:
             return yaw
@@ -344,15 +359,16 @@ class WheelOdometryIntegrator:
         self._run_yaw = self._run_s = 0.0
         return yaw - self.gyro_bias_rad_s * dt_s
 
-    def step(self, left_rad: float, right_rad: float, dt_s: Optional[float] = None) -> np.ndarray:
+    def step(self, left_rad: float, right_rad: float, dt_s: float | None = None) -> np.ndarray:
         """Advance with new cumulative wheel angles (``dt_s`` since the previous step, for the
         counter-jump check and the gyro's rest bias); returns the pose (odometry frame)."""
         if self._last is None:
             self._last = (left_rad, right_rad)
             return self.pose.copy()
         dl, dr = left_rad - self._last[0], right_rad - self._last[1]
-        if dt_s is not None and max(abs(dl) * self.left_diameter_m, abs(dr) * self.right_diameter_m) / 2 \
-                > self.max_speed_mps * max(dt_s, 0.1):
+        if dt_s is not None and max(
+            abs(dl) * self.left_diameter_m, abs(dr) * self.right_diameter_m
+        ) / 2 > self.max_speed_mps * max(dt_s, 0.1):
             self.jumps += 1
             dl = dr = 0.0
         d, w = wheel_odometry(dl, dr, self.left_diameter_m, self.right_diameter_m, self.wheel_base_m)
@@ -383,7 +399,7 @@ class GyroBuffer:
 
     @property
     def _stamps(self) -> np.ndarray:
-        return self._st_buf[:self._n]
+        return self._st_buf[: self._n]
 
     @property
     def last_stamp(self) -> int:
@@ -398,8 +414,11 @@ class GyroBuffer:
         if k == 0:
             return
         # the usual batch (after the last stamp, increasing, room left) goes straight to the copies
-        if not (n + k <= self._st_buf.size and (n == 0 or st[0] > self._st_buf[n - 1])
-                and (k == 1 or bool((st[1:] > st[:-1]).all()))):
+        if not (
+            n + k <= self._st_buf.size
+            and (n == 0 or st[0] > self._st_buf[n - 1])
+            and (k == 1 or bool((st[1:] > st[:-1]).all()))
+        ):
             if n:
                 keep = st > self.last_stamp
                 if not keep.all():
@@ -413,8 +432,8 @@ class GyroBuffer:
                 cap = max(2 * self._st_buf.size, n + k)
                 self._st_buf = np.concatenate([self._st_buf[:n], np.zeros(cap - n, dtype=np.int64)])
                 self._dy_buf = np.concatenate([self._dy_buf[:n], np.zeros(cap - n)])
-        self._st_buf[n:n + k] = st
-        self._dy_buf[n:n + k] = dy
+        self._st_buf[n : n + k] = st
+        self._dy_buf[n : n + k] = dy
         self._n = n + k
 
     def yaw_between(self, t0_ns: int, t1_ns: int) -> float:
@@ -428,6 +447,6 @@ class GyroBuffer:
         k = int(np.searchsorted(self._stamps, before_ns, side="right"))
         if k > 10000:
             n = self._n - k
-            self._st_buf[:n] = self._st_buf[k:self._n]
-            self._dy_buf[:n] = self._dy_buf[k:self._n]
+            self._st_buf[:n] = self._st_buf[k : self._n]
+            self._dy_buf[:n] = self._dy_buf[k : self._n]
             self._n = n

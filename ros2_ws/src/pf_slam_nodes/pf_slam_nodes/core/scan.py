@@ -134,8 +134,7 @@ def scan_limits_ok(range_min: float, range_max: float) -> bool:
     ``0 <= range_min <= range_max``, ``range_max > 0`` and not NaN (``+inf``: no upper limit,
     the core's default). A scan that fails this has no valid range (REP 117: values outside the
     limits are no returns), so nothing of it is used."""
-    return (math.isfinite(range_min) and 0.0 <= range_min <= range_max and range_max > 0.0
-            and not math.isnan(range_max))
+    return math.isfinite(range_min) and 0.0 <= range_min <= range_max and range_max > 0.0 and not math.isnan(range_max)
 
 
 def gate_ranges(ranges: np.ndarray, range_min: float, range_max: float) -> np.ndarray:
@@ -157,9 +156,14 @@ def gate_ranges(ranges: np.ndarray, range_min: float, range_max: float) -> np.nd
     return np.where(outside, np.nan, r)
 
 
-def planar_scan(ranges: np.ndarray, angles: np.ndarray, laser, planar_offset: np.ndarray,
-                range_min: float = 0.0, range_max: float = math.inf
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def planar_scan(
+    ranges: np.ndarray,
+    angles: np.ndarray,
+    laser,
+    planar_offset: np.ndarray,
+    range_min: float = 0.0,
+    range_max: float = math.inf,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A scan as a planar sensor in the vehicle frame sees it: ``(ranges, angles, offset (3,))``.
 
     First the scan's own limits gate its ranges (:func:`gate_ranges`; ``range_min``,

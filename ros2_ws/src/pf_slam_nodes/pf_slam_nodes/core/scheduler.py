@@ -48,12 +48,14 @@ What it schedules:
 * **End of stream.** The last scan of the input is always sent on (:class:`SendEnd` when it is a
   pass-through) so the correlator and the mapper see the end of the run.
 """
+
 from __future__ import annotations
 
 import dataclasses
 from collections import deque
+from collections.abc import Callable
 from itertools import islice
-from typing import Any, Callable, Optional
+from typing import Any
 
 import numpy as np
 
@@ -70,6 +72,7 @@ LOOK_AHEAD = 200  # queued scans looked at for evidence about the head scan's od
 @dataclasses.dataclass
 class PublishPose:
     """The pose (map frame) of the next scan, at its stamp (ns)."""
+
     pose: np.ndarray
     stamp: int
 
@@ -78,18 +81,20 @@ class PublishPose:
 class SendCorrection:
     """Correct scan ``index`` (``payload``: what :meth:`PredictorScheduler.add_scan` was given)
     starting from this predicted set; answer with :meth:`PredictorScheduler.corrected`."""
+
     index: int
     stamp: int
     payload: Any
     particles: np.ndarray
     log_weights: np.ndarray
     odom: np.ndarray
-    mount: Optional[np.ndarray] = None  # (12,) the lidar's mount at the scan's stamp (moving mount)
+    mount: np.ndarray | None = None  # (12,) the lidar's mount at the scan's stamp (moving mount)
 
 
 @dataclasses.dataclass
 class SendEnd:
     """The last scan of the input was a pass-through: the end of the run (no particles)."""
+
     index: int
     stamp: int
     odom: np.ndarray
@@ -99,6 +104,7 @@ class SendEnd:
 @dataclasses.dataclass
 class PublishOdomTf:
     """The odometry (odom -> base) at a scan's stamp."""
+
     odom: np.ndarray
     stamp: int
 
@@ -111,6 +117,7 @@ class PublishStatus:
 @dataclasses.dataclass
 class Fault:
     """A counted fault (``kind``: its summary.json "faults" key) with what was wrong."""
+
     kind: str
     text: str
 
@@ -118,6 +125,7 @@ class Fault:
 @dataclasses.dataclass
 class Warn:
     """A one-off warning (with its numbers)."""
+
     text: str
 
 
@@ -152,12 +160,21 @@ class PredictorScheduler:
         :meth:`add_scan`); otherwise unused.
     """
 
-    def __init__(self, filter_cfg: FilterConfig, motion_cfg: OdometryMotionConfig,
-                 odometry_source: str = "odom", odom_sync: str = "interpolate",
-                 wheels_cfg: Optional[WheelsConfig] = None, gyro: bool = False, odom_wait_scans: int = 50,
-                 stamp_offset_s: float = 2.0, time_gap_s: float = 60.0,
-                 emit: Optional[Callable[[Any], None]] = None, stage: Optional[PredictionStage] = None,
-                 laser_cfg: Optional[LaserConfig] = None) -> None:
+    def __init__(
+        self,
+        filter_cfg: FilterConfig,
+        motion_cfg: OdometryMotionConfig,
+        odometry_source: str = "odom",
+        odom_sync: str = "interpolate",
+        wheels_cfg: WheelsConfig | None = None,
+        gyro: bool = False,
+        odom_wait_scans: int = 50,
+        stamp_offset_s: float = 2.0,
+        time_gap_s: float = 60.0,
+        emit: Callable[[Any], None] | None = None,
+        stage: PredictionStage | None = None,
+        laser_cfg: LaserConfig | None = None,
+    ) -> None:
         if odometry_source not in ("odom", "encoders"):
             raise ValueError(f"odometry_source must be 'odom' or 'encoders', got {odometry_source!r}")
         if gyro and odometry_source != "encoders":
@@ -172,46 +189,47 @@ class PredictorScheduler:
         self._emit_fn = emit
         self._out: list = []
         # (scan_index, stamp_ns or None (unreadable), usable, payload, odometry messages received before it)
-        self.scans: deque[tuple[int, Optional[int], bool, Any, int]] = deque()
+        self.scans: deque[tuple[int, int | None, bool, Any, int]] = deque()
         self.odom_forced = 0  # scans posed without waiting longer for odometry that did not come
         self.stamp_offset = 0  # scans whose stamp was seconds away from the odometry's
         self._offset_run = 0  # scans in a row so far away
         self._odom_arrived_at_scan = 0
-        self.prev_odom: Optional[tuple[int, np.ndarray]] = None  # (stamp, odometry) of the last scan posed
+        self.prev_odom: tuple[int, np.ndarray] | None = None  # (stamp, odometry) of the last scan posed
         self.odometry_nonfinite = 0
         self.poses_published = 0
         self.scan_count = 0
-        self.waiting_for: Optional[int] = None  # scan index of the update in flight
+        self.waiting_for: int | None = None  # scan index of the update in flight
         self.odom_received = 0  # odometry messages once integrated (odom_arrived: as they arrive)
         self.odom_arrived = 0
-        self.odom_expected: Optional[int] = None  # from the input's final counts
-        self.scans_expected: Optional[int] = None
+        self.odom_expected: int | None = None  # from the input's final counts
+        self.scans_expected: int | None = None
         self.corrected_pose = np.zeros(3)  # pose of the last corrected scan
-        self.last_pass_through: Optional[tuple] = None  # (index, stamp, odom, delta)
+        self.last_pass_through: tuple | None = None  # (index, stamp, odom, delta)
         self.deferred: deque[tuple] = deque()  # pass-throughs behind the correction in flight
         self.end_sent = False
         self.blocked = -1  # index of the scan known to need a correction while one is in flight
-        self._stall: Optional[dict[str, Optional[int]]] = None  # the replay's counts when it last stalled
+        self._stall: dict[str, int | None] | None = None  # the replay's counts when it last stalled
         self.encoders_used = odometry_source == "encoders"
-        self.wheels: Optional[WheelOdometryIntegrator] = None
+        self.wheels: WheelOdometryIntegrator | None = None
         if self.encoders_used:
             w = wheels_cfg or WheelsConfig()
-            self.wheels = WheelOdometryIntegrator(w.left_diameter_m, w.right_diameter_m, w.base_m,
-                                                  w.max_speed_mps, w.gyro_rest_bias, w.rest_min_s)
-            self.encoders: deque[tuple[int, Optional[float], Optional[float]]] = deque()
-            self.last_encoder_ns: Optional[int] = None
+            self.wheels = WheelOdometryIntegrator(
+                w.left_diameter_m, w.right_diameter_m, w.base_m, w.max_speed_mps, w.gyro_rest_bias, w.rest_min_s
+            )
+            self.encoders: deque[tuple[int, float | None, float | None]] = deque()
+            self.last_encoder_ns: int | None = None
         self.gyro = GyroBuffer() if gyro else None
         self.fog_received = 0
-        self.fog_expected: Optional[int] = None
-        self.last_imu_ns: Optional[int] = None
+        self.fog_expected: int | None = None
+        self.last_imu_ns: int | None = None
         # a moving mount: its samples, the scans' geometry, the per-scan decision (once per scan)
         self.laser_cfg = laser_cfg
         self.mount = MountBuffer() if laser_cfg is not None and laser_cfg.dynamic_frame else None
         self.mount_arrived = 0
-        self.mount_expected: Optional[int] = None
+        self.mount_expected: int | None = None
         self.mostly_floor = 0
         self._geometry: dict[int, tuple] = {}
-        self._mount_decided: Optional[tuple[int, bool, Optional[np.ndarray]]] = None
+        self._mount_decided: tuple[int, bool, np.ndarray | None] | None = None
 
     # ------------------------------------------------------------------ plumbing
     def _emit(self, action: Any) -> None:
@@ -244,7 +262,7 @@ class PredictorScheduler:
         self._drain()
         return self._done()
 
-    def add_encoders(self, stamp: Optional[int], wheels_rad: Optional[np.ndarray]) -> list:
+    def add_encoders(self, stamp: int | None, wheels_rad: np.ndarray | None) -> list:
         """Cumulative (left, right) wheel angles (rad) at ``stamp``; ``wheels_rad=None``: a message
         that could not be read (counted, so the end-of-stream count still matches; the caller
         says what was wrong)."""
@@ -259,7 +277,7 @@ class PredictorScheduler:
         self._drain_odometry()
         return self._done()
 
-    def add_gyro(self, stamps: Optional[np.ndarray], dyaw: Optional[np.ndarray], topic: str = "fog") -> list:
+    def add_gyro(self, stamps: np.ndarray | None, dyaw: np.ndarray | None, topic: str = "fog") -> list:
         """One gyro message: yaw increments (rad) at their stamps (ns); ``None``: unreadable
         (counted, its samples are no yaw)."""
         self.fog_received += 1  # counted even if bad: the end-of-stream count must still match
@@ -294,8 +312,14 @@ class PredictorScheduler:
         self._drain()
         return self._done()
 
-    def add_scan(self, stamp: Optional[int], usable: bool, payload: Any,
-                 faults: list[tuple[str, str]] = (), geometry: Optional[tuple] = None) -> list:
+    def add_scan(
+        self,
+        stamp: int | None,
+        usable: bool,
+        payload: Any,
+        faults: list[tuple[str, str]] = (),
+        geometry: tuple | None = None,
+    ) -> list:
         """A scan at ``stamp`` (ns; None: unreadable, posed at the previous scan's stamp and
         odometry). ``usable``: it can be corrected with (see :attr:`checks`, which also gives
         ``faults``). ``payload`` is handed back in :class:`SendCorrection`. ``geometry``:
@@ -311,8 +335,9 @@ class PredictorScheduler:
         self._drain()
         return self._done()
 
-    def corrected(self, index: int, particles: np.ndarray, log_weights: np.ndarray, pose: np.ndarray,
-                  stamp: int) -> list:
+    def corrected(
+        self, index: int, particles: np.ndarray, log_weights: np.ndarray, pose: np.ndarray, stamp: int
+    ) -> list:
         """The corrected set of scan ``index`` (``pose``: its pose, map frame) is back."""
         if index == self.waiting_for:
             self.stage.set_corrected(particles, log_weights)
@@ -335,7 +360,7 @@ class PredictorScheduler:
         self._drain()
         return self._done()
 
-    def stall(self, pose: Optional[int], scans: int, odometry: int, gyro: int = 0, mount: int = 0) -> list:
+    def stall(self, pose: int | None, scans: int, odometry: int, gyro: int = 0, mount: int = 0) -> list:
         """The replay stopped (max_in_flight) after publishing this many messages, waiting for
         pose number ``pose``."""
         self._stall = {"pose": pose, "scans": scans, "odometry": odometry, "gyro": gyro, "mount": mount}
@@ -345,10 +370,15 @@ class PredictorScheduler:
     # ------------------------------------------------------------------ status
     def faults(self) -> dict[str, int]:
         """Every fault counter of the run so far (summary.json "faults")."""
-        out = dict(self.checks.counts, odometry_nonfinite=self.odometry_nonfinite,
-                   odom_time_backwards=self.odom.backward_steps, odom_missing=self.odom.missing,
-                   odom_not_arrived=self.odom_forced, odom_stamp_offset=self.stamp_offset,
-                   odom_sync_fallback=int(self.odom.fallback is not None))
+        out = dict(
+            self.checks.counts,
+            odometry_nonfinite=self.odometry_nonfinite,
+            odom_time_backwards=self.odom.backward_steps,
+            odom_missing=self.odom.missing,
+            odom_not_arrived=self.odom_forced,
+            odom_stamp_offset=self.stamp_offset,
+            odom_sync_fallback=int(self.odom.fallback is not None),
+        )
         if self.wheels is not None:
             out["encoder_jump"] = self.wheels.jumps
         if self.gyro is not None:
@@ -367,8 +397,12 @@ class PredictorScheduler:
 
     def status(self) -> dict:
         """``final`` (the last scan of the input is posed), scans, faults (+ gyro)."""
-        return {"final": self.poses_published == self.scans_expected, "scans": self.scan_count,
-                "faults": self.faults(), **self.gyro_status()}
+        return {
+            "final": self.poses_published == self.scans_expected,
+            "scans": self.scan_count,
+            "faults": self.faults(),
+            **self.gyro_status(),
+        }
 
     # ------------------------------------------------------------------ encoders + gyro
     def _gyro_done(self) -> bool:
@@ -404,8 +438,11 @@ class PredictorScheduler:
             dt = None if self.last_encoder_ns is None else (t - self.last_encoder_ns) / 1e9
             self.odom.add(t, self.wheels.step(left, right, dt))
             if self.wheels.jumps > jumps:
-                self._fault("encoder_jump", f"encoders: wheel angles jumped by more than the wheels can turn "
-                            f"in {dt:.3f} s at wheels.max_speed_mps; that step's wheel motion discarded")
+                self._fault(
+                    "encoder_jump",
+                    f"encoders: wheel angles jumped by more than the wheels can turn "
+                    f"in {dt:.3f} s at wheels.max_speed_mps; that step's wheel motion discarded",
+                )
             self.last_encoder_ns = t
             self.odom_received += 1
 
@@ -415,12 +452,16 @@ class PredictorScheduler:
         is in flight: nothing more comes until a scan is posed (deterministic: the stall point
         depends only on the data)."""
         st = self._stall
-        return (st is not None and self.waiting_for is None and not self.deferred
-                and st["pose"] == self.poses_published  # it waits for our next pose
-                and st["scans"] == self.scan_count
-                and st["odometry"] == self.odom_arrived
-                and (self.gyro is None or st["gyro"] == self.fog_received)
-                and (self.mount is None or st["mount"] == self.mount_arrived))
+        return (
+            st is not None
+            and self.waiting_for is None
+            and not self.deferred
+            and st["pose"] == self.poses_published  # it waits for our next pose
+            and st["scans"] == self.scan_count
+            and st["odometry"] == self.odom_arrived
+            and (self.gyro is None or st["gyro"] == self.fog_received)
+            and (self.mount is None or st["mount"] == self.mount_arrived)
+        )
 
     def _drain(self) -> None:
         if self.encoders_used:
@@ -464,14 +505,17 @@ class PredictorScheduler:
         self.odom.trim()
         self._maybe_send_end()
 
-    def _mount_decision(self, index: int, stamp: int) -> Optional[tuple[bool, Optional[np.ndarray]]]:
+    def _mount_decision(self, index: int, stamp: int) -> tuple[bool, np.ndarray | None] | None:
         """(usable, the mount (12,) at the stamp) for a scan that would be corrected, or None while
         the mount's samples may still reach its stamp. Decided once per scan (a mostly-floor scan
         is counted once, however often the queue is looked at)."""
         if self._mount_decided is not None and self._mount_decided[0] == index:
             return self._mount_decided[1:]
-        final = ((self.mount_expected is not None and self.mount_arrived >= self.mount_expected)
-                 or self._stalled() or 0 < self.odom_wait_scans < len(self.scans))
+        final = (
+            (self.mount_expected is not None and self.mount_arrived >= self.mount_expected)
+            or self._stalled()
+            or 0 < self.odom_wait_scans < len(self.scans)
+        )
         if not self.mount.covers(stamp) and not final:
             return None
         dyn = self.mount.at(stamp)
@@ -486,12 +530,15 @@ class PredictorScheduler:
             if kept < cfg.min_kept_fraction:
                 usable = False
                 self.mostly_floor += 1
-                self._fault(MOSTLY_FLOOR, f"scan {index}: {kept:.0%} of its returns are above the floor "
-                            f"(laser.min_kept_fraction {cfg.min_kept_fraction:g}): posed from odometry")
+                self._fault(
+                    MOSTLY_FLOOR,
+                    f"scan {index}: {kept:.0%} of its returns are above the floor "
+                    f"(laser.min_kept_fraction {cfg.min_kept_fraction:g}): posed from odometry",
+                )
         self._mount_decided = (index, usable, ext)
         return usable, ext
 
-    def _odom_at(self, peek: bool) -> Optional[np.ndarray]:
+    def _odom_at(self, peek: bool) -> np.ndarray | None:
         """The odometry of the scan at the head of the queue, or None while it may still come.
 
         It is known not to come (a pose is then always returned, see OdometryBuffer, counted in
@@ -515,24 +562,32 @@ class PredictorScheduler:
             why = self.odom.no_partner([s[1] for s in islice(self.scans, LOOK_AHEAD)])
             if why is not None:
                 self.odom.fall_back(scan=index, scans_without_partner=why[0], odometry_between=why[1])
-                self._emit(Warn(
-                    f"odom_sync exact: scans {index}..: {why[0]} scans have no odometry message with their "
-                    f"stamp while {why[1]} odometry messages stamped between them arrived (the odometry "
-                    f"is not recorded with each scan); pairing by interpolation from scan {index} on. "
-                    f"Set odom_sync: interpolate for this input"))
+                self._emit(
+                    Warn(
+                        f"odom_sync exact: scans {index}..: {why[0]} scans have no odometry message with their "
+                        f"stamp while {why[1]} odometry messages stamped between them arrived (the odometry "
+                        f"is not recorded with each scan); pairing by interpolation from scan {index} on. "
+                        f"Set odom_sync: interpolate for this input"
+                    )
+                )
                 odom = lookup(stamp, final=False)
-        if odom is None and not final and (
-                self._stalled() or 0 < self.odom_wait_scans < len(self.scans)):
+        if odom is None and not final and (self._stalled() or 0 < self.odom_wait_scans < len(self.scans)):
             odom = lookup(stamp, final=True)
             if not peek:
                 self.odom_forced += 1
                 newest = self.odom.progress_ns
-                why = ("the replay waits for its pose (max_in_flight)" if self._stalled() else
-                       f"{len(self.scans) - 1} scans wait behind it (odom_wait_scans)")
-                self._fault("odom_not_arrived", f"scan {index}: no odometry at or after its stamp while {why}; "
-                            "newest odometry " + ("none" if newest is None else
-                                                  f"{(newest - stamp) / 1e9:+.3f} s from it")
-                            + ": posed with the nearest earlier odometry")
+                why = (
+                    "the replay waits for its pose (max_in_flight)"
+                    if self._stalled()
+                    else f"{len(self.scans) - 1} scans wait behind it (odom_wait_scans)"
+                )
+                self._fault(
+                    "odom_not_arrived",
+                    f"scan {index}: no odometry at or after its stamp while {why}; "
+                    "newest odometry "
+                    + ("none" if newest is None else f"{(newest - stamp) / 1e9:+.3f} s from it")
+                    + ": posed with the nearest earlier odometry",
+                )
         if odom is not None and not peek and self.scans[0][1] is not None:
             self.prev_odom = (self.scans[0][1], odom)
         return odom
@@ -555,23 +610,26 @@ class PredictorScheduler:
     def _stamp_offset(self, stamp: int, by_ns: int, how: str) -> None:
         self.stamp_offset += 1
         if self.stamp_offset == 1:  # once, with the numbers (then throttled like every fault)
-            self._emit(Warn(
-                f"odometry stamps {by_ns / 1e9:.3f} s {how} the scan stamps (scan {self.scan_count}, "
-                f"stamp {stamp / 1e9:.3f} s): the two clocks disagree, pairing is wrong by that much; "
-                f"counted in faults.odom_stamp_offset"))
+            self._emit(
+                Warn(
+                    f"odometry stamps {by_ns / 1e9:.3f} s {how} the scan stamps (scan {self.scan_count}, "
+                    f"stamp {stamp / 1e9:.3f} s): the two clocks disagree, pairing is wrong by that much; "
+                    f"counted in faults.odom_stamp_offset"
+                )
+            )
         else:
             self._fault("odom_stamp_offset", f"odometry {by_ns / 1e9:.3f} s {how} scan stamp {stamp / 1e9:.3f} s")
 
-    def _predict(self, index: int, stamp: int, odom: np.ndarray, usable: bool, payload: Any,
-                 mount: Optional[np.ndarray] = None) -> None:
+    def _predict(
+        self, index: int, stamp: int, odom: np.ndarray, usable: bool, payload: Any, mount: np.ndarray | None = None
+    ) -> None:
         if not usable:  # a scan the correlator cannot use: posed from odometry
             self._pass_through(index, stamp, odom, self.stage.gate(odom)[1])
             return
         update, delta = self.stage.predict(odom)
         if update:
             self.waiting_for = index
-            self._emit(SendCorrection(index, stamp, payload, self.stage.particles, self.stage.log_weights, odom,
-                                      mount))
+            self._emit(SendCorrection(index, stamp, payload, self.stage.particles, self.stage.log_weights, odom, mount))
             return
         self._pass_through(index, stamp, odom, delta)
 
@@ -589,8 +647,13 @@ class PredictorScheduler:
         """Once the last scan of the input is posed as a pass-through, send it on as the end of
         the run: a set without particles (update=false) that the correlator and mapper pass on."""
         last = self.last_pass_through
-        if (self.waiting_for is not None or self.end_sent or self.scans_expected is None or last is None
-                or last[0] != self.scans_expected - 1):
+        if (
+            self.waiting_for is not None
+            or self.end_sent
+            or self.scans_expected is None
+            or last is None
+            or last[0] != self.scans_expected - 1
+        ):
             return
         self.end_sent = True
         self._emit(SendEnd(*last))

@@ -17,17 +17,23 @@ each correction run at once.
 from __future__ import annotations
 
 import math
-from typing import Optional
 
 import numpy as np
 
-from .config import (CorrelationConfig, FilterConfig, GridConfig, LaserConfig, OdometryMotionConfig,
-                     ResampleConfig, WheelsConfig)
+from .config import (
+    CorrelationConfig,
+    FilterConfig,
+    GridConfig,
+    LaserConfig,
+    OdometryMotionConfig,
+    ResampleConfig,
+    WheelsConfig,
+)
 from .correlation import GridLikelihoodField
-from .grid import LogOddsGrid
 from .geometry import compose
+from .grid import LogOddsGrid
 from .scheduler import PredictorScheduler, PublishPose, SendCorrection
-from .stages import CorrectionStage, MappingStage, PredictionStage, STAGE_STEPS, stage_seconds
+from .stages import STAGE_STEPS, CorrectionStage, MappingStage, PredictionStage, stage_seconds
 
 STAGES = STAGE_STEPS
 
@@ -50,15 +56,21 @@ class ParticleFilterSlam:
         nodes); ``counts`` the number of calls.
     """
 
-    def __init__(self, filter_cfg: FilterConfig, motion_cfg: OdometryMotionConfig, grid_cfg: GridConfig,
-                 corr_cfg: CorrelationConfig, resample_cfg: ResampleConfig,
-                 laser_cfg: Optional[LaserConfig] = None) -> None:
+    def __init__(
+        self,
+        filter_cfg: FilterConfig,
+        motion_cfg: OdometryMotionConfig,
+        grid_cfg: GridConfig,
+        corr_cfg: CorrelationConfig,
+        resample_cfg: ResampleConfig,
+        laser_cfg: LaserConfig | None = None,
+    ) -> None:
         self.predictor = PredictionStage(filter_cfg, motion_cfg)
         self.corrector = CorrectionStage(filter_cfg, grid_cfg, corr_cfg, resample_cfg, laser_cfg)
         self.mapper = MappingStage(filter_cfg, grid_cfg, laser_cfg)
         self.num_updates = 0  # corrections after the first scan
-        self._pose: Optional[np.ndarray] = None
-        self.scheduler: Optional[PredictorScheduler] = None  # open_stream()
+        self._pose: np.ndarray | None = None
+        self.scheduler: PredictorScheduler | None = None  # open_stream()
         self.stream_poses: list[tuple[int, np.ndarray]] = []  # (stamp ns, pose) per scan, in scan order
         self._counts = {"scans": 0, "odometry": 0, "gyro": 0}
 
@@ -81,17 +93,17 @@ class ParticleFilterSlam:
         return self.predictor.log_weights.copy()
 
     @property
-    def grid(self) -> Optional[LogOddsGrid]:
+    def grid(self) -> LogOddsGrid | None:
         """The map (None before the first scan)."""
         return self.mapper.grid
 
     @property
-    def field(self) -> Optional[GridLikelihoodField]:
+    def field(self) -> GridLikelihoodField | None:
         """The correlation stage's likelihood field of the map (None before the first scan)."""
         return self.corrector.field
 
     @property
-    def pose(self) -> Optional[np.ndarray]:
+    def pose(self) -> np.ndarray | None:
         """Last corrected pose ``(3,)`` (None before the first scan)."""
         return None if self._pose is None else self._pose.copy()
 
@@ -99,9 +111,15 @@ class ParticleFilterSlam:
     def num_resamples(self) -> int:
         return self.corrector.num_resamples
 
-    def process_odometry_scan(self, stamp: float, odom_pose: np.ndarray, ranges: np.ndarray,
-                              angles: np.ndarray, range_min: float = 0.0,
-                              range_max: float = math.inf) -> np.ndarray:
+    def process_odometry_scan(
+        self,
+        stamp: float,
+        odom_pose: np.ndarray,
+        ranges: np.ndarray,
+        angles: np.ndarray,
+        range_min: float = 0.0,
+        range_max: float = math.inf,
+    ) -> np.ndarray:
         """Process one scan with the odometry pose at its time.
 
         Parameters
@@ -125,8 +143,9 @@ class ParticleFilterSlam:
         update, delta = self.predictor.predict(odom_pose)
         if not update:
             return compose(self._pose, delta)
-        c = self.corrector.correct(self.predictor.particles, self.predictor.log_weights, ranges, angles,
-                                   range_min, range_max)
+        c = self.corrector.correct(
+            self.predictor.particles, self.predictor.log_weights, ranges, angles, range_min, range_max
+        )
         self.predictor.set_corrected(c.particles, c.log_weights)
         patch = self.mapper.integrate(c.pose, ranges, angles, range_min, range_max)
         self.corrector.apply_patch(patch)
@@ -135,18 +154,32 @@ class ParticleFilterSlam:
         return c.pose.copy()
 
     # ------------------------------------------------------------------ input streams
-    def open_stream(self, odometry_source: str = "odom", odom_sync: str = "interpolate",
-                    wheels_cfg: Optional[WheelsConfig] = None, gyro: bool = False,
-                    time_gap_s: float = 60.0) -> PredictorScheduler:
+    def open_stream(
+        self,
+        odometry_source: str = "odom",
+        odom_sync: str = "interpolate",
+        wheels_cfg: WheelsConfig | None = None,
+        gyro: bool = False,
+        time_gap_s: float = 60.0,
+    ) -> PredictorScheduler:
         """Take the inputs as streams, as the predictor node does (same parameters: the
         node's ``odometry_source``, ``odom_sync``, ``wheels.*``, a gyro (``fog_format`` not
         'none') and ``time_gap_s``). All input is here (no live waiting: ``odom_wait_scans``
         and the clock check are off, as under `pf-slam run`). The poses collect in
         :attr:`stream_poses`; the fault counts are ``scheduler.faults()``."""
-        self.scheduler = PredictorScheduler(self.predictor.filter_cfg, self.predictor.motion_cfg,
-                                            odometry_source, odom_sync, wheels_cfg, gyro=gyro,
-                                            odom_wait_scans=0, stamp_offset_s=0.0, time_gap_s=time_gap_s,
-                                            stage=self.predictor, laser_cfg=self.mapper.laser_cfg)
+        self.scheduler = PredictorScheduler(
+            self.predictor.filter_cfg,
+            self.predictor.motion_cfg,
+            odometry_source,
+            odom_sync,
+            wheels_cfg,
+            gyro=gyro,
+            odom_wait_scans=0,
+            stamp_offset_s=0.0,
+            time_gap_s=time_gap_s,
+            stage=self.predictor,
+            laser_cfg=self.mapper.laser_cfg,
+        )
         self.stream_poses = []
         self._counts = {"scans": 0, "odometry": 0, "gyro": 0, "mount": 0}
         return self.scheduler
@@ -161,22 +194,30 @@ class ParticleFilterSlam:
             elif isinstance(a, SendCorrection):
                 ranges, angles, range_min, range_max = a.payload
                 first = self._pose is None
-                c = self.corrector.correct(a.particles, a.log_weights, ranges, angles, range_min, range_max,
-                                           extrinsic=a.mount)
+                c = self.corrector.correct(
+                    a.particles, a.log_weights, ranges, angles, range_min, range_max, extrinsic=a.mount
+                )
                 patch = self.mapper.integrate(c.pose, ranges, angles, range_min, range_max, extrinsic=a.mount)
                 self.corrector.apply_patch(patch)
                 self._pose = c.pose.copy()
                 self.num_updates += 0 if first else 1
                 work[:0] = self.scheduler.corrected(a.index, c.particles, c.log_weights, c.pose, a.stamp)
 
-    def add_scan(self, stamp_ns: int, ranges: np.ndarray, angle_min: float, angle_max: float,
-                 angle_increment: float, range_min: float = 0.0, range_max: float = math.inf) -> None:
+    def add_scan(
+        self,
+        stamp_ns: int,
+        ranges: np.ndarray,
+        angle_min: float,
+        angle_max: float,
+        angle_increment: float,
+        range_min: float = 0.0,
+        range_max: float = math.inf,
+    ) -> None:
         """A scan as a LaserScan carries it (ranges (B,), the angles and the range limits):
         checked (:class:`~pf_slam_nodes.core.faults.ScanChecks`), then posed in its turn."""
         s = self.scheduler
         ranges = np.asarray(ranges, dtype=np.float64)
-        usable, faults = s.checks.check(stamp_ns, ranges, angle_min, angle_max, angle_increment,
-                                        range_min, range_max)
+        usable, faults = s.checks.check(stamp_ns, ranges, angle_min, angle_max, angle_increment, range_min, range_max)
         angles = angle_min + angle_increment * np.arange(ranges.size, dtype=np.float64)
         self._counts["scans"] += 1
         geometry = (ranges, angles, float(range_min), float(range_max))
@@ -193,14 +234,17 @@ class ParticleFilterSlam:
         self._counts["odometry"] += 1
         self._run(self.scheduler.add_odometry(int(stamp_ns), np.asarray(pose, dtype=np.float64)))
 
-    def add_encoders(self, stamp_ns: int, wheels_rad: Optional[np.ndarray]) -> None:
+    def add_encoders(self, stamp_ns: int, wheels_rad: np.ndarray | None) -> None:
         """Cumulative (left, right) wheel angles (rad), e.g. a JointState's first two positions
         (odometry_source 'encoders'); None: an unreadable message (counted)."""
         self._counts["odometry"] += 1
-        self._run(self.scheduler.add_encoders(int(stamp_ns), None if wheels_rad is None
-                                              else np.asarray(wheels_rad, dtype=np.float64)))
+        self._run(
+            self.scheduler.add_encoders(
+                int(stamp_ns), None if wheels_rad is None else np.asarray(wheels_rad, dtype=np.float64)
+            )
+        )
 
-    def add_gyro(self, stamps_ns: Optional[np.ndarray], dyaw_rad: Optional[np.ndarray]) -> None:
+    def add_gyro(self, stamps_ns: np.ndarray | None, dyaw_rad: np.ndarray | None) -> None:
         """One gyro message: yaw increments (rad) at their stamps, e.g. a FogBatch."""
         self._counts["gyro"] += 1
         self._run(self.scheduler.add_gyro(stamps_ns, dyaw_rad))

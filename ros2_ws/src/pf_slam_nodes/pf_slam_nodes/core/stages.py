@@ -13,17 +13,24 @@ Random streams: one ``np.random.Generator`` per stage, seeded ``[seed, k]`` (k =
 2 resampling, 3 a localization's initial candidates), so a stage's draws do not depend on which
 process it runs in.
 """
+
 from __future__ import annotations
 
 import dataclasses
 import math
 import time
-from typing import Optional
 
 import numpy as np
 
-from .config import (CorrelationConfig, FilterConfig, GridConfig, LaserConfig, LocalizationConfig,
-                     OdometryMotionConfig, ResampleConfig)
+from .config import (
+    CorrelationConfig,
+    FilterConfig,
+    GridConfig,
+    LaserConfig,
+    LocalizationConfig,
+    OdometryMotionConfig,
+    ResampleConfig,
+)
 from .correlation import GridLikelihoodField, correlate
 from .filter import n_eff, resample, update_log_weights
 from .geometry import relative_pose
@@ -89,7 +96,7 @@ class PredictionStage:
         n = filter_cfg.num_particles
         self.particles = np.zeros((n, 3))
         self.log_weights = np.full(n, -math.log(n))
-        self.odom_at_update: Optional[np.ndarray] = None
+        self.odom_at_update: np.ndarray | None = None
         self.clock = StageClock()  # "predict": the motion model's sampling
 
     def predict(self, odom_pose: np.ndarray) -> tuple[bool, np.ndarray]:
@@ -121,8 +128,7 @@ class PredictionStage:
             return True, np.zeros(3)
         fc = self.filter_cfg
         delta = relative_pose(self.odom_at_update, np.asarray(odom_pose, dtype=np.float64).reshape(3))
-        return bool(math.hypot(delta[0], delta[1]) >= fc.min_travel_m
-                    or abs(delta[2]) >= fc.min_rotation_rad), delta
+        return bool(math.hypot(delta[0], delta[1]) >= fc.min_travel_m or abs(delta[2]) >= fc.min_rotation_rad), delta
 
     def set_corrected(self, particles: np.ndarray, log_weights: np.ndarray) -> None:
         self.particles = np.asarray(particles, dtype=np.float64).reshape(-1, 3).copy()
@@ -131,11 +137,11 @@ class PredictionStage:
 
 @dataclasses.dataclass
 class Correction:
-    particles: np.ndarray      # (N, 3) after correction (and resampling)
-    log_weights: np.ndarray    # (N,) normalised
-    pose: np.ndarray           # (3,) best particle before resampling
+    particles: np.ndarray  # (N, 3) after correction (and resampling)
+    log_weights: np.ndarray  # (N,) normalised
+    pose: np.ndarray  # (3,) best particle before resampling
     resampled: bool
-    matched: bool              # False when there was no map to match against
+    matched: bool  # False when there was no map to match against
 
 
 class CorrectionStage:
@@ -147,25 +153,31 @@ class CorrectionStage:
     of another size than ``filter.num_particles`` is resampled to it once it has converged
     (core/localization.py)."""
 
-    def __init__(self, filter_cfg: FilterConfig, grid_cfg: GridConfig, corr_cfg: CorrelationConfig,
-                 resample_cfg: ResampleConfig, laser_cfg: Optional[LaserConfig] = None,
-                 loc_cfg: Optional[LocalizationConfig] = None) -> None:
+    def __init__(
+        self,
+        filter_cfg: FilterConfig,
+        grid_cfg: GridConfig,
+        corr_cfg: CorrelationConfig,
+        resample_cfg: ResampleConfig,
+        laser_cfg: LaserConfig | None = None,
+        loc_cfg: LocalizationConfig | None = None,
+    ) -> None:
         self.loc_cfg = loc_cfg or LocalizationConfig()
-        self.localizer: Optional[Localizer] = None  # set_map: localization on a fixed map
-        self.pending_init: Optional[tuple] = None  # (mean, cov): around a pose; (None, None): global
+        self.localizer: Localizer | None = None  # set_map: localization on a fixed map
+        self.pending_init: tuple | None = None  # (mean, cov): around a pose; (None, None): global
         self.init_rng = np.random.default_rng([filter_cfg.seed, INIT_STREAM])
         self.initialisations = 0
-        self.converged_at: Optional[int] = None  # correction at which the set was last reduced
+        self.converged_at: int | None = None  # correction at which the set was last reduced
         self.init_seconds = 0.0  # wall time of the last initialising correction (candidates + matching)
-        self.last_init: Optional[str] = None  # "global" or "initial pose"
+        self.last_init: str | None = None  # "global" or "initial pose"
         self.filter_cfg = filter_cfg
         self.laser_cfg = laser_cfg or LaserConfig()
         self.grid_cfg = grid_cfg
         self.corr_cfg = corr_cfg
         self.resample_cfg = resample_cfg
         self.rng = np.random.default_rng([filter_cfg.seed, RESAMPLE_STREAM])
-        self.field: Optional[GridLikelihoodField] = None
-        self.known: Optional[np.ndarray] = None  # (H, W) bool observed cells (skip_unknown only)
+        self.field: GridLikelihoodField | None = None
+        self.known: np.ndarray | None = None  # (H, W) bool observed cells (skip_unknown only)
         self.pose = np.zeros(3)
         self.num_corrections = 0
         self.num_resamples = 0
@@ -190,16 +202,21 @@ class CorrectionStage:
 
     def localization_status(self, particles: int) -> dict:
         """What a run reports of the localization (summary.json ``localization``)."""
-        return {"initialisations": self.initialisations, "last_init": self.last_init,
-                "converged_at_correction": self.converged_at,
-                "init_seconds": round(self.init_seconds, 3), "particles": particles,
-                "free_area_m2": round(self.localizer.free_area_m2, 1) if self.localizer else None}
+        return {
+            "initialisations": self.initialisations,
+            "last_init": self.last_init,
+            "converged_at_correction": self.converged_at,
+            "init_seconds": round(self.init_seconds, 3),
+            "particles": particles,
+            "free_area_m2": round(self.localizer.free_area_m2, 1) if self.localizer else None,
+        }
 
     def request_init(self, mean=None, cov=None) -> None:
         """Localization: the next correction starts a new set around ``mean`` (``(3,)``, map
         frame) with covariance ``cov`` (``(3, 3)``, x y yaw), or globally (``mean`` None)."""
-        self.pending_init = (None, None) if mean is None else (np.asarray(mean, float).reshape(3),
-                                                               np.asarray(cov, float).reshape(3, 3))
+        self.pending_init = (
+            (None, None) if mean is None else (np.asarray(mean, float).reshape(3), np.asarray(cov, float).reshape(3, 3))
+        )
 
     def apply_patch(self, patch: MapPatch) -> int:
         """Bring the likelihood field up to date with a map patch; returns the cells changed.
@@ -223,8 +240,12 @@ class CorrectionStage:
         occ = np.asarray(patch.occupancy)
         c0, r0 = np.rint((np.asarray(patch.origin, float) - f.origin) / f.resolution).astype(np.int64)
         if occ.size:
-            add = growth_plan(f.height, f.width, (int(r0), int(r0) + occ.shape[0], int(c0), int(c0) + occ.shape[1]),
-                              int(self.grid_cfg.max_cells))
+            add = growth_plan(
+                f.height,
+                f.width,
+                (int(r0), int(r0) + occ.shape[0], int(c0), int(c0) + occ.shape[1]),
+                int(self.grid_cfg.max_cells),
+            )
             if add is not None and any(add):
                 f.grow(add)
                 if self.known is not None:
@@ -234,7 +255,7 @@ class CorrectionStage:
         b0, b1 = max(int(c0), 0), min(int(c0) + occ.shape[1], f.width)
         if a0 >= a1 or b0 >= b1:
             return 0
-        sub = occ[a0 - r0:a1 - r0, b0 - c0:b1 - c0]
+        sub = occ[a0 - r0 : a1 - r0, b0 - c0 : b1 - c0]
         if self.known is not None:
             self.known[a0:a1, b0:b1] = sub >= 0
         return f.set_obstacle_block(a0, b0, sub >= self.corr_cfg.occupied_threshold)
@@ -248,16 +269,24 @@ class CorrectionStage:
         keep[ok] = self.known[cells[ok, 1], cells[ok, 0]]
         return keep
 
-    def correct(self, particles: np.ndarray, log_weights: np.ndarray, ranges: np.ndarray,
-                angles: np.ndarray, range_min: float = 0.0, range_max: float = math.inf,
-                extrinsic: Optional[np.ndarray] = None) -> Correction:
+    def correct(
+        self,
+        particles: np.ndarray,
+        log_weights: np.ndarray,
+        ranges: np.ndarray,
+        angles: np.ndarray,
+        range_min: float = 0.0,
+        range_max: float = math.inf,
+        extrinsic: np.ndarray | None = None,
+    ) -> Correction:
         """Correct a predicted set with a scan (ranges (B,), beam angles (B,) in the sensor frame;
         ``extrinsic``: this scan's mount (12,) on a moving mount, else the configured one)."""
         t0 = t0_all = time.perf_counter()
         particles = np.asarray(particles, dtype=np.float64).reshape(-1, 3)
         log_w = np.asarray(log_weights, dtype=np.float64)
-        ranges, angles, offset = scan_in_base(ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset,
-                                              range_min, range_max, extrinsic)
+        ranges, angles, offset = scan_in_base(
+            ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset, range_min, range_max, extrinsic
+        )
         pts = scan_to_points(ranges, angles, max(range_min, 1e-6), min(range_max, self.corr_cfg.range_max_m))
         if np.any(offset):
             pts = transform_points(pts, offset)
@@ -297,8 +326,15 @@ class CorrectionStage:
         return Correction(particles, log_w, pose, resampled, bool(matched))
 
 
-def scan_in_base(ranges, angles, laser: LaserConfig, planar_offset, range_min: float, range_max: float,
-                 extrinsic: Optional[np.ndarray] = None):
+def scan_in_base(
+    ranges,
+    angles,
+    laser: LaserConfig,
+    planar_offset,
+    range_min: float,
+    range_max: float,
+    extrinsic: np.ndarray | None = None,
+):
     """:func:`planar_scan` with the configured mount, or with ``extrinsic`` (12,), this scan's
     mount on a moving mount (core/mount.py)."""
     if extrinsic is None:
@@ -321,23 +357,28 @@ def pose_estimate(particles: np.ndarray, log_w: np.ndarray, cfg: FilterConfig) -
 class MappingStage:
     """The log-odds grid: integrates scans at corrected poses, exports occupancy."""
 
-    def __init__(self, filter_cfg: FilterConfig, grid_cfg: GridConfig,
-                 laser_cfg: Optional[LaserConfig] = None) -> None:
+    def __init__(self, filter_cfg: FilterConfig, grid_cfg: GridConfig, laser_cfg: LaserConfig | None = None) -> None:
         self.filter_cfg = filter_cfg
         self.grid_cfg = grid_cfg
         self.laser_cfg = laser_cfg or LaserConfig()
-        self.grid: Optional[LogOddsGrid] = None
-        self.pose: Optional[np.ndarray] = None
-        self._occ: Optional[np.ndarray] = None  # int8 occupancy of the whole grid, kept current
+        self.grid: LogOddsGrid | None = None
+        self.pose: np.ndarray | None = None
+        self._occ: np.ndarray | None = None  # int8 occupancy of the whole grid, kept current
         self.clock = StageClock()  # "map": ray tracing + log-odds + the patch
 
     @property
     def ready(self) -> bool:
         return self.grid is not None
 
-    def integrate(self, pose: np.ndarray, ranges: np.ndarray, angles: np.ndarray,
-                  range_min: float = 0.0, range_max: float = math.inf,
-                  extrinsic: Optional[np.ndarray] = None) -> MapPatch:
+    def integrate(
+        self,
+        pose: np.ndarray,
+        ranges: np.ndarray,
+        angles: np.ndarray,
+        range_min: float = 0.0,
+        range_max: float = math.inf,
+        extrinsic: np.ndarray | None = None,
+    ) -> MapPatch:
         """Integrate a scan at a corrected pose; returns the patch of the cells it touched
         (``extrinsic``: this scan's mount (12,) on a moving mount, else the configured one)."""
         t0 = time.perf_counter()
@@ -345,15 +386,23 @@ class MappingStage:
         self.clock.add("map", t0)
         return patch
 
-    def _integrate(self, pose: np.ndarray, ranges: np.ndarray, angles: np.ndarray,
-                   range_min: float, range_max: float, extrinsic: Optional[np.ndarray] = None) -> MapPatch:
+    def _integrate(
+        self,
+        pose: np.ndarray,
+        ranges: np.ndarray,
+        angles: np.ndarray,
+        range_min: float,
+        range_max: float,
+        extrinsic: np.ndarray | None = None,
+    ) -> MapPatch:
         pose = np.asarray(pose, dtype=np.float64).reshape(3)
         if self.grid is None:
             self.grid = LogOddsGrid(self.grid_cfg, center_xy=pose[:2])
             self._occ = self.grid.occupancy()
         g = self.grid
-        ranges, angles, offset = scan_in_base(ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset,
-                                              range_min, range_max, extrinsic)
+        ranges, angles, offset = scan_in_base(
+            ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset, range_min, range_max, extrinsic
+        )
         g.integrate_scan(pose, ranges, angles, offset, range_min, range_max)
         if g.last_growth is not None:  # the grid grew by whole tiles: so does its occupancy
             self._occ = grow_array(self._occ, g.last_growth, -1)

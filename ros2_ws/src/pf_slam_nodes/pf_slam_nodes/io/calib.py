@@ -37,36 +37,40 @@ if TYPE_CHECKING:
     from ..core.texture import StereoRig
 
 __all__ = [
-    'parse_encoder_params',
-    'parse_extrinsic',
-    'parse_lidar_params',
-    'parse_stereo_baseline',
-    'read_camera_yaml',
-    'read_stereo_rig',
+    "parse_encoder_params",
+    "parse_extrinsic",
+    "parse_lidar_params",
+    "parse_stereo_baseline",
+    "read_camera_yaml",
+    "read_stereo_rig",
 ]
 
 #: Largest ``|R R^T - I|`` accepted for a rotation matrix read from a file.
 ORTHONORMAL_TOL = 1e-3
 
-_NUMBER = re.compile(r'^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$')
+_NUMBER = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
 
 
 def _key_values(path: str | os.PathLike) -> dict[str, str]:
     """``{lower-cased key: rest of line}`` of the ``key: value`` lines of a text file."""
     p = Path(path)
     if not p.is_file():
-        raise ValueError(f'{p}: calibration file missing')
+        raise ValueError(f"{p}: calibration file missing")
     out: dict[str, str] = {}
-    with open(p, encoding='utf-8', errors='replace') as fh:
+    with open(p, encoding="utf-8", errors="replace") as fh:
         for line in fh:
-            key, sep, rest = line.partition(':')
+            key, sep, rest = line.partition(":")
             if sep and key.strip():
                 out.setdefault(key.strip().lower(), rest.strip())
     return out
 
 
-def _numbers(path: str | os.PathLike, kv: dict[str, str], key: str, n: int | None = None,
-             ) -> np.ndarray:
+def _numbers(
+    path: str | os.PathLike,
+    kv: dict[str, str],
+    key: str,
+    n: int | None = None,
+) -> np.ndarray:
     """The leading numbers of ``kv[key]`` (a unit in parentheses after them is ignored)."""
     if key not in kv:
         raise ValueError(f'{path}: no "{key}:" line')
@@ -76,7 +80,7 @@ def _numbers(path: str | os.PathLike, kv: dict[str, str], key: str, n: int | Non
             break
         vals.append(float(tok))
     if not vals or (n is not None and len(vals) != n):
-        want = 'numbers' if n is None else f'{n} numbers'
+        want = "numbers" if n is None else f"{n} numbers"
         raise ValueError(f'{path}: "{key}:" needs {want}, got {kv[key]!r}')
     arr = np.array(vals, dtype=np.float64)
     if not np.all(np.isfinite(arr)):
@@ -85,7 +89,7 @@ def _numbers(path: str | os.PathLike, kv: dict[str, str], key: str, n: int | Non
 
 
 def _unit(kv: dict[str, str], key: str) -> str | None:
-    m = re.search(r'\(([^)]*)\)', kv.get(key, ''))
+    m = re.search(r"\(([^)]*)\)", kv.get(key, ""))
     return m.group(1).strip().lower() if m else None
 
 
@@ -107,13 +111,14 @@ def parse_extrinsic(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np
     above ``ORTHONORMAL_TOL`` or ``det(R) < 0``).
     """
     kv = _key_values(path)
-    rpy = _numbers(path, kv, 'rpy', 3)
-    rot = _numbers(path, kv, 'r', 9).reshape(3, 3)
-    t = _numbers(path, kv, 't', 3)
+    rpy = _numbers(path, kv, "rpy", 3)
+    rot = _numbers(path, kv, "r", 9).reshape(3, 3)
+    t = _numbers(path, kv, "t", 3)
     err = float(np.abs(rot @ rot.T - np.eye(3)).max())
     if err > ORTHONORMAL_TOL or np.linalg.det(rot) < 0.0:
-        raise ValueError(f'{path}: R is not a rotation matrix (|R R^T - I| = {err:.2g}, '
-                         f'det = {np.linalg.det(rot):.4f})')
+        raise ValueError(
+            f"{path}: R is not a rotation matrix (|R R^T - I| = {err:.2g}, det = {np.linalg.det(rot):.4f})"
+        )
     return rot, t, rpy
 
 
@@ -125,17 +130,17 @@ def parse_encoder_params(path: str | os.PathLike) -> dict:
     """
     kv = _key_values(path)
     out = {
-        'resolution': _numbers(path, kv, 'encoder resolution', 1)[0],
-        'left_wheel_diameter_m': float(_numbers(path, kv, 'encoder left wheel diameter', 1)[0]),
-        'right_wheel_diameter_m': float(_numbers(path, kv, 'encoder right wheel diameter', 1)[0]),
-        'wheel_base_m': float(_numbers(path, kv, 'encoder wheel base', 1)[0]),
+        "resolution": _numbers(path, kv, "encoder resolution", 1)[0],
+        "left_wheel_diameter_m": float(_numbers(path, kv, "encoder left wheel diameter", 1)[0]),
+        "right_wheel_diameter_m": float(_numbers(path, kv, "encoder right wheel diameter", 1)[0]),
+        "wheel_base_m": float(_numbers(path, kv, "encoder wheel base", 1)[0]),
     }
     for key, val in out.items():
         if not val > 0:
-            raise ValueError(f'{path}: {key} must be > 0, got {val}')
-    if out['resolution'] != int(out['resolution']):
-        raise ValueError(f'{path}: encoder resolution must be an integer, got {out["resolution"]}')
-    out['resolution'] = int(out['resolution'])
+            raise ValueError(f"{path}: {key} must be > 0, got {val}")
+    if out["resolution"] != int(out["resolution"]):
+        raise ValueError(f"{path}: encoder resolution must be an integer, got {out['resolution']}")
+    out["resolution"] = int(out["resolution"])
     return out
 
 
@@ -147,34 +152,33 @@ def parse_lidar_params(path: str | os.PathLike) -> dict:
     """
     kv = _key_values(path)
     out = {
-        'fov_deg': float(_numbers(path, kv, 'fov', 1)[0]),
-        'start_deg': float(_numbers(path, kv, 'start angle', 1)[0]),
-        'end_deg': float(_numbers(path, kv, 'end angle', 1)[0]),
-        'resolution_deg': float(_numbers(path, kv, 'angular resolution', 1)[0]),
-        'max_range_m': float(_numbers(path, kv, 'max range', 1)[0]),
+        "fov_deg": float(_numbers(path, kv, "fov", 1)[0]),
+        "start_deg": float(_numbers(path, kv, "start angle", 1)[0]),
+        "end_deg": float(_numbers(path, kv, "end angle", 1)[0]),
+        "resolution_deg": float(_numbers(path, kv, "angular resolution", 1)[0]),
+        "max_range_m": float(_numbers(path, kv, "max range", 1)[0]),
     }
-    if not out['end_deg'] > out['start_deg']:
-        raise ValueError(f'{path}: end angle {out["end_deg"]} must exceed start angle '
-                         f'{out["start_deg"]}')
-    for key in ('resolution_deg', 'max_range_m'):
+    if not out["end_deg"] > out["start_deg"]:
+        raise ValueError(f"{path}: end angle {out['end_deg']} must exceed start angle {out['start_deg']}")
+    for key in ("resolution_deg", "max_range_m"):
         if not out[key] > 0:
-            raise ValueError(f'{path}: {key} must be > 0, got {out[key]}')
+            raise ValueError(f"{path}: {key} must be > 0, got {out[key]}")
     return out
 
 
 def parse_stereo_baseline(path: str | os.PathLike) -> float:
     """Read ``stereo_param.txt``: the baseline in metres (the file says mm; a unit is honoured)."""
     kv = _key_values(path)
-    key = next((k for k in kv if 'baseline' in k), None)
+    key = next((k for k in kv if "baseline" in k), None)
     if key is None:
         raise ValueError(f'{path}: no "Baseline ...:" line')
     val = float(_numbers(path, kv, key, 1)[0])
-    unit = _unit(kv, key) or 'mm'
-    scale = {'mm': 1e-3, 'cm': 1e-2, 'm': 1.0}.get(unit)
+    unit = _unit(kv, key) or "mm"
+    scale = {"mm": 1e-3, "cm": 1e-2, "m": 1.0}.get(unit)
     if scale is None:
-        raise ValueError(f'{path}: unknown baseline unit {unit!r}')
+        raise ValueError(f"{path}: unknown baseline unit {unit!r}")
     if not val > 0:
-        raise ValueError(f'{path}: baseline must be > 0, got {val}')
+        raise ValueError(f"{path}: baseline must be > 0, got {val}")
     return val * scale
 
 
@@ -192,44 +196,46 @@ def read_camera_yaml(path: str | os.PathLike) -> dict:
 
     p = Path(path)
     if not p.is_file():
-        raise ValueError(f'{p}: calibration file missing')
+        raise ValueError(f"{p}: calibration file missing")
     try:
         fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
     except (cv2.error, SystemError) as exc:  # OpenCV raises SystemError on a YAML parse error
-        raise ValueError(f'{p}: not an OpenCV YAML file: {exc}'.splitlines()[0]) from exc
+        raise ValueError(f"{p}: not an OpenCV YAML file: {exc}".splitlines()[0]) from exc
     if not fs.isOpened():
-        raise ValueError(f'{p}: cannot open as an OpenCV YAML file')
+        raise ValueError(f"{p}: cannot open as an OpenCV YAML file")
     try:
+
         def node(name: str):  # noqa: ANN202
             n = fs.getNode(name)
             if n.empty():
-                raise ValueError(f'{p}: no {name!r}')
+                raise ValueError(f"{p}: no {name!r}")
             return n
 
         def mat(name: str, shape: tuple[int, ...]) -> np.ndarray:
             m = node(name).mat()
             if m is None or m.size != int(np.prod(shape)):
-                raise ValueError(f'{p}: {name!r} must be a {shape} matrix')
+                raise ValueError(f"{p}: {name!r} must be a {shape} matrix")
             arr = np.asarray(m, dtype=np.float64).reshape(shape)
             if not np.all(np.isfinite(arr)):
-                raise ValueError(f'{p}: {name!r} has non-finite values')
+                raise ValueError(f"{p}: {name!r} has non-finite values")
             return arr
 
-        width, height = node('image_width').real(), node('image_height').real()
+        width, height = node("image_width").real(), node("image_height").real()
         if not (width > 0 and height > 0 and width == int(width) and height == int(height)):
-            raise ValueError(f'{p}: bad image size {width} x {height}')
-        d = node('distortion_coefficients').mat()
+            raise ValueError(f"{p}: bad image size {width} x {height}")
+        d = node("distortion_coefficients").mat()
         if d is None:
-            raise ValueError(f'{p}: \'distortion_coefficients\' must be a matrix')
-        name = fs.getNode('camera_name')
+            raise ValueError(f"{p}: 'distortion_coefficients' must be a matrix")
+        name = fs.getNode("camera_name")
         return {
-            'width': int(width), 'height': int(height),
-            'K': mat('camera_matrix', (3, 3)),
-            'D': np.asarray(d, dtype=np.float64).ravel(),
-            'R': mat('rectification_matrix', (3, 3)),
-            'P': mat('projection_matrix', (3, 4)),
-            'distortion_model': node('distortion_model').string(),
-            'camera_name': '' if name.empty() else name.string(),
+            "width": int(width),
+            "height": int(height),
+            "K": mat("camera_matrix", (3, 3)),
+            "D": np.asarray(d, dtype=np.float64).ravel(),
+            "R": mat("rectification_matrix", (3, 3)),
+            "P": mat("projection_matrix", (3, 4)),
+            "distortion_model": node("distortion_model").string(),
+            "camera_name": "" if name.empty() else name.string(),
         }
     finally:
         fs.release()
@@ -242,7 +248,7 @@ def read_stereo_rig(param_dir: str | os.PathLike) -> StereoRig:
     from ..core.texture import StereoRig  # local: the texture core pulls in OpenCV
 
     d = Path(param_dir)
-    left = read_camera_yaml(d / 'left_camera.yaml')
-    right = read_camera_yaml(d / 'right_camera.yaml')
-    rot, t, _ = parse_extrinsic(d / 'Vehicle2Stereo.txt')
-    return StereoRig(int(left['width']), int(left['height']), left, right, nearest_rotation(rot), t)
+    left = read_camera_yaml(d / "left_camera.yaml")
+    right = read_camera_yaml(d / "right_camera.yaml")
+    rot, t, _ = parse_extrinsic(d / "Vehicle2Stereo.txt")
+    return StereoRig(int(left["width"]), int(left["height"]), left, right, nearest_rotation(rot), t)

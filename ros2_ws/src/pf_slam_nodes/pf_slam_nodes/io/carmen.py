@@ -68,17 +68,17 @@ import numpy as np
 from .skips import SkipLog
 
 __all__ = [
-    'CarmenLog',
-    'CarmenOdom',
-    'CarmenScan',
-    'flaser_angles',
-    'infer_no_return',
-    'read_carmen',
-    'stamp_str_to_ns',
+    "CarmenLog",
+    "CarmenOdom",
+    "CarmenScan",
+    "flaser_angles",
+    "infer_no_return",
+    "read_carmen",
+    "stamp_str_to_ns",
 ]
 
 #: The message types read; every other type is skipped (counted, one warning per type).
-USED_TYPES = ('FLASER', 'ROBOTLASER1', 'ODOM')
+USED_TYPES = ("FLASER", "ROBOTLASER1", "ODOM")
 
 
 @dataclass
@@ -118,7 +118,7 @@ class CarmenScan:
     odom_pose: np.ndarray
     line_no: int
     stamp_ns: int = 0
-    kind: str = 'FLASER'
+    kind: str = "FLASER"
     tv: float = 0.0
     rv: float = 0.0
 
@@ -149,7 +149,7 @@ class CarmenLog:
     warnings: list = field(default_factory=list)
     stamp_repeats: int = 0
     stamp_steps_back: int = 0
-    path: str = ''
+    path: str = ""
     #: a "no return" value inferred from the data (:func:`infer_no_return`), or None
     sentinel_m: float | None = None
     sentinel_count: int = 0
@@ -162,7 +162,7 @@ def flaser_angles(n_beams: int) -> tuple[float, float]:
     ``pi/(n-1)`` for odd ``n`` (so that 181 and 361 beams end exactly at +90 deg).
     """
     if n_beams < 2:
-        raise ValueError(f'n_beams must be >= 2, got {n_beams}')
+        raise ValueError(f"n_beams must be >= 2, got {n_beams}")
     inc = math.pi / n_beams if n_beams % 2 == 0 else math.pi / (n_beams - 1)
     return -math.pi / 2.0, inc
 
@@ -175,9 +175,9 @@ def stamp_str_to_ns(text: str) -> int:
     try:
         d = Decimal(text)
     except InvalidOperation:
-        raise ValueError(f'not a number: {text!r}') from None
+        raise ValueError(f"not a number: {text!r}") from None
     if not d.is_finite():
-        raise ValueError(f'not a finite time: {text!r}')
+        raise ValueError(f"not a finite time: {text!r}")
     return int((d * 1_000_000_000).to_integral_value())
 
 
@@ -189,10 +189,10 @@ def _floats(tokens: list[str], what: str) -> np.ndarray:
     try:
         arr = np.array(tokens, dtype=np.float64)
     except ValueError:
-        bad = next((t for t in tokens if not _is_float(t)), '?')
-        raise _BadLine(f'non-numeric {what} {bad!r}') from None
+        bad = next((t for t in tokens if not _is_float(t)), "?")
+        raise _BadLine(f"non-numeric {what} {bad!r}") from None
     if not np.all(np.isfinite(arr)):
-        raise _BadLine(f'NaN or inf in {what}')
+        raise _BadLine(f"NaN or inf in {what}")
     return arr
 
 
@@ -208,20 +208,20 @@ def _int(tok: str, what: str) -> int:
     try:
         return int(tok)
     except ValueError:
-        raise _BadLine(f'{what} is not an integer: {tok!r}') from None
+        raise _BadLine(f"{what} is not an integer: {tok!r}") from None
 
 
 def _stamp(tok: str) -> tuple[float, int]:
     try:
         ns = stamp_str_to_ns(tok)
     except ValueError:
-        raise _BadLine(f'bad timestamp {tok!r}') from None
+        raise _BadLine(f"bad timestamp {tok!r}") from None
     return float(tok), ns
 
 
 def _ranges(raw: np.ndarray, no_return_m: float) -> np.ndarray:
     if np.any(raw < 0.0):
-        raise _BadLine(f'negative range {raw[raw < 0.0][0]!r}')
+        raise _BadLine(f"negative range {raw[raw < 0.0][0]!r}")
     out = raw.astype(np.float32)
     out[raw >= no_return_m] = np.inf
     return out
@@ -229,63 +229,79 @@ def _ranges(raw: np.ndarray, no_return_m: float) -> np.ndarray:
 
 def _parse_flaser(tok: list[str], line_no: int, no_return_m: float) -> CarmenScan:
     if len(tok) < 2:
-        raise _BadLine('no beam count')
-    n = _int(tok[1], 'beam count')
+        raise _BadLine("no beam count")
+    n = _int(tok[1], "beam count")
     if n < 2:
-        raise _BadLine(f'beam count {n} < 2')
+        raise _BadLine(f"beam count {n} < 2")
     expected = n + 11
     if len(tok) != expected:
-        raise _BadLine(f'expected {expected} fields for {n} beams, got {len(tok)}')
-    raw = _floats(tok[2:2 + n], 'range')
-    poses = _floats(tok[2 + n:8 + n], 'pose')
+        raise _BadLine(f"expected {expected} fields for {n} beams, got {len(tok)}")
+    raw = _floats(tok[2 : 2 + n], "range")
+    poses = _floats(tok[2 + n : 8 + n], "pose")
     stamp_s, stamp_ns = _stamp(tok[8 + n])
     angle_min, inc = flaser_angles(n)
     return CarmenScan(
-        stamp_s=stamp_s, ranges=_ranges(raw, no_return_m), angle_min=angle_min,
-        angle_increment=inc, range_max=float(no_return_m), laser_pose=poses[:3].copy(),
-        odom_pose=poses[3:].copy(), line_no=line_no, stamp_ns=stamp_ns, kind='FLASER')
+        stamp_s=stamp_s,
+        ranges=_ranges(raw, no_return_m),
+        angle_min=angle_min,
+        angle_increment=inc,
+        range_max=float(no_return_m),
+        laser_pose=poses[:3].copy(),
+        odom_pose=poses[3:].copy(),
+        line_no=line_no,
+        stamp_ns=stamp_ns,
+        kind="FLASER",
+    )
 
 
 def _parse_robotlaser1(tok: list[str], line_no: int, no_return_m: float) -> CarmenScan:
     # ROBOTLASER1 type start fov res max_range accuracy remission_mode n r.. m rem.. 14 fields + 3
     if len(tok) < 9:
-        raise _BadLine(f'too few fields ({len(tok)})')
-    head = _floats(tok[2:7], 'header field')
+        raise _BadLine(f"too few fields ({len(tok)})")
+    head = _floats(tok[2:7], "header field")
     start_angle, fov, res, max_range, _acc = (float(v) for v in head)
-    n = _int(tok[8], 'beam count')
+    n = _int(tok[8], "beam count")
     if n < 1 or len(tok) < 9 + n + 1:
-        raise _BadLine(f'{n} beams announced but only {len(tok)} fields')
-    m = _int(tok[9 + n], 'remission count')
+        raise _BadLine(f"{n} beams announced but only {len(tok)} fields")
+    m = _int(tok[9 + n], "remission count")
     expected = n + m + 24
     if m < 0 or len(tok) != expected:
-        raise _BadLine(f'expected {expected} fields for {n} beams and {m} remissions, '
-                       f'got {len(tok)}')
+        raise _BadLine(f"expected {expected} fields for {n} beams and {m} remissions, got {len(tok)}")
     if not res > 0.0 or not max_range > 0.0:
-        raise _BadLine(f'angular_res {res} and max_range {max_range} must be > 0')
+        raise _BadLine(f"angular_res {res} and max_range {max_range} must be > 0")
     if min(abs(fov - n * res), abs(fov - (n - 1) * res)) > 0.5 * res:
-        raise _BadLine(f'{n} beams at angular_res {res} do not cover the header fov {fov}')
-    raw = _floats(tok[9:9 + n], 'range')
-    rest = _floats(tok[10 + n + m:10 + n + m + 11], 'pose/velocity')
+        raise _BadLine(f"{n} beams at angular_res {res} do not cover the header fov {fov}")
+    raw = _floats(tok[9 : 9 + n], "range")
+    rest = _floats(tok[10 + n + m : 10 + n + m + 11], "pose/velocity")
     stamp_s, stamp_ns = _stamp(tok[10 + n + m + 11])
     threshold = min(max_range, no_return_m)
     return CarmenScan(
-        stamp_s=stamp_s, ranges=_ranges(raw, threshold), angle_min=start_angle,
-        angle_increment=res, range_max=float(threshold), laser_pose=rest[0:3].copy(),
-        odom_pose=rest[3:6].copy(), line_no=line_no, stamp_ns=stamp_ns, kind='ROBOTLASER1',
-        tv=float(rest[6]), rv=float(rest[7]))
+        stamp_s=stamp_s,
+        ranges=_ranges(raw, threshold),
+        angle_min=start_angle,
+        angle_increment=res,
+        range_max=float(threshold),
+        laser_pose=rest[0:3].copy(),
+        odom_pose=rest[3:6].copy(),
+        line_no=line_no,
+        stamp_ns=stamp_ns,
+        kind="ROBOTLASER1",
+        tv=float(rest[6]),
+        rv=float(rest[7]),
+    )
 
 
 def _parse_odom(tok: list[str], line_no: int) -> CarmenOdom:
     if len(tok) != 10:
-        raise _BadLine(f'expected 10 fields, got {len(tok)}')
-    vals = _floats(tok[1:7], 'value')
+        raise _BadLine(f"expected 10 fields, got {len(tok)}")
+    vals = _floats(tok[1:7], "value")
     stamp_s, stamp_ns = _stamp(tok[7])
-    return CarmenOdom(stamp_s=stamp_s, pose=vals[:3].copy(), tv=float(vals[3]),
-                      rv=float(vals[4]), line_no=line_no, stamp_ns=stamp_ns)
+    return CarmenOdom(
+        stamp_s=stamp_s, pose=vals[:3].copy(), tv=float(vals[3]), rv=float(vals[4]), line_no=line_no, stamp_ns=stamp_ns
+    )
 
 
-def read_carmen(path: str | os.PathLike, no_return_m: float = 80.0,
-                infer_sentinel: bool = True) -> CarmenLog:
+def read_carmen(path: str | os.PathLike, no_return_m: float = 80.0, infer_sentinel: bool = True) -> CarmenLog:
     """Read a CARMEN log.
 
     Parameters
@@ -304,7 +320,7 @@ def read_carmen(path: str | os.PathLike, no_return_m: float = 80.0,
         and warnings. See the module docstring for the conventions.
     """
     if not no_return_m > 0.0:
-        raise ValueError(f'no_return_m must be > 0, got {no_return_m}')
+        raise ValueError(f"no_return_m must be > 0, got {no_return_m}")
     log = CarmenLog(path=str(path))
     name = os.path.basename(str(path))
     bad = SkipLog(log.skipped, log.warnings)
@@ -313,33 +329,37 @@ def read_carmen(path: str | os.PathLike, no_return_m: float = 80.0,
     with _open_text(path) as fh:
         for line_no, line in _lines(fh, name, log):
             tok = line.split()
-            if not tok or tok[0].startswith('#'):
+            if not tok or tok[0].startswith("#"):
                 continue
             kind = tok[0] if tok[0].isprintable() else ascii(tok[0])  # binary junk, named safely
             try:
-                if kind == 'FLASER':
+                if kind == "FLASER":
                     log.scans.append(_parse_flaser(tok, line_no, no_return_m))
-                elif kind == 'ROBOTLASER1':
+                elif kind == "ROBOTLASER1":
                     log.scans.append(_parse_robotlaser1(tok, line_no, no_return_m))
-                elif kind == 'ODOM':
+                elif kind == "ODOM":
                     log.odoms.append(_parse_odom(tok, line_no))
                 else:
                     unused.setdefault(kind, line_no)
                     log.skipped[kind] = log.skipped.get(kind, 0) + 1
             except _BadLine as exc:
-                bad.skip(name, line_no, f'{kind}: {exc}', key=f'malformed {kind}')
+                bad.skip(name, line_no, f"{kind}: {exc}", key=f"malformed {kind}")
     bad.finish()
     for kind, first in unused.items():
-        log.warnings.append(f'{name}:{first}: message type {kind} is not read (only '
-                            f'{", ".join(USED_TYPES)}); its {log.skipped[kind]} lines skipped')
+        log.warnings.append(
+            f"{name}:{first}: message type {kind} is not read (only "
+            f"{', '.join(USED_TYPES)}); its {log.skipped[kind]} lines skipped"
+        )
 
     kinds = {s.kind for s in log.scans}
     if len(kinds) > 1:
-        n_fl = sum(1 for s in log.scans if s.kind == 'FLASER')
-        log.scans = [s for s in log.scans if s.kind == 'ROBOTLASER1']
-        log.skipped['FLASER (ROBOTLASER1 present)'] = n_fl
-        log.warnings.append(f'{name}: has both FLASER and ROBOTLASER1 lines; kept the '
-                            f'{len(log.scans)} ROBOTLASER1 scans, skipped {n_fl} FLASER')
+        n_fl = sum(1 for s in log.scans if s.kind == "FLASER")
+        log.scans = [s for s in log.scans if s.kind == "ROBOTLASER1"]
+        log.skipped["FLASER (ROBOTLASER1 present)"] = n_fl
+        log.warnings.append(
+            f"{name}: has both FLASER and ROBOTLASER1 lines; kept the "
+            f"{len(log.scans)} ROBOTLASER1 scans, skipped {n_fl} FLASER"
+        )
 
     _check_stamps(log, name)
     if infer_sentinel:
@@ -350,11 +370,11 @@ def read_carmen(path: str | os.PathLike, no_return_m: float = 80.0,
 def _open_text(path: str | os.PathLike):
     """The log as text lines: gzip-compressed (``.gz``, recognised by its magic bytes, whatever
     the name) or plain."""
-    with open(path, 'rb') as fh:
+    with open(path, "rb") as fh:
         magic = fh.read(2)
-    if magic == b'\x1f\x8b':
-        return gzip.open(path, 'rt', encoding='utf-8', errors='replace')
-    return open(path, encoding='utf-8', errors='replace')
+    if magic == b"\x1f\x8b":
+        return gzip.open(path, "rt", encoding="utf-8", errors="replace")
+    return open(path, encoding="utf-8", errors="replace")
 
 
 def _lines(fh, name: str, log: CarmenLog):
@@ -365,10 +385,12 @@ def _lines(fh, name: str, log: CarmenLog):
         for line_no, line in enumerate(fh, start=1):
             yield line_no, line
     except (EOFError, OSError, zlib.error) as exc:
-        log.skipped['damaged gzip'] = log.skipped.get('damaged gzip', 0) + 1
-        log.warnings.append(f'{name}:{line_no + 1}: compressed stream damaged after line {line_no} '
-                            f'({type(exc).__name__}: {exc}); the {line_no} lines before it are read, '
-                            'the rest is lost')
+        log.skipped["damaged gzip"] = log.skipped.get("damaged gzip", 0) + 1
+        log.warnings.append(
+            f"{name}:{line_no + 1}: compressed stream damaged after line {line_no} "
+            f"({type(exc).__name__}: {exc}); the {line_no} lines before it are read, "
+            "the rest is lost"
+        )
 
 
 #: a sentinel occurs at least this often (beams), and at least this fraction of the finite beams
@@ -419,23 +441,25 @@ def _apply_sentinel(log: CarmenLog, name: str) -> None:
         s.range_max = min(float(s.range_max), v)
     log.sentinel_m, log.sentinel_count = v, n
     log.warnings.append(
-        f'{name}: {n} beams read exactly {v:g} m, the largest range of the log: taken as the '
-        f'logger\'s "no return" and written as +inf (REP 117), range_max {v:g} m')
+        f"{name}: {n} beams read exactly {v:g} m, the largest range of the log: taken as the "
+        f'logger\'s "no return" and written as +inf (REP 117), range_max {v:g} m'
+    )
 
 
 def _check_stamps(log: CarmenLog, name: str) -> None:
-    for what, items in (('scan', log.scans), ('ODOM', log.odoms)):
+    for what, items in (("scan", log.scans), ("ODOM", log.odoms)):
         if len(items) < 2:
             continue
         ns = np.array([s.stamp_ns for s in items], dtype=np.int64)
         d = np.diff(ns)
         repeats = int(np.count_nonzero(d == 0))
         back = int(np.count_nonzero(d < 0))
-        if what == 'scan':
+        if what == "scan":
             log.stamp_repeats, log.stamp_steps_back = repeats, back
         if repeats or back:
             first = items[int(np.flatnonzero(d <= 0)[0]) + 1].line_no
             worst = float(-d.min()) * 1e-9 if back else 0.0
             log.warnings.append(
-                f'{name}: {repeats} {what} timestamps repeat the previous one and {back} step '
-                f'back (by up to {worst:.3f} s; first at line {first}); kept in file order')
+                f"{name}: {repeats} {what} timestamps repeat the previous one and {back} step "
+                f"back (by up to {worst:.3f} s; first at line {first}); kept in file order"
+            )

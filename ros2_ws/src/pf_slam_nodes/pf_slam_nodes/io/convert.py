@@ -40,15 +40,15 @@ from .bag import joint_state_wheels, laser_scan, odometry, open_writer, tf_stati
 from .carmen import read_carmen
 from .mines import read_mines
 
-__all__ = ['ConvertReport', 'convert_carmen', 'convert_mines', 'laser_offset']
+__all__ = ["ConvertReport", "convert_carmen", "convert_mines", "laser_offset"]
 
 #: Record-time step (ns) used where the log's time does not increase.
 RETIME_STEP_NS = 1000
 
-TOPIC_SCAN = '/scan'
-TOPIC_ODOM = '/odom'
-TOPIC_ENCODERS = '/encoders'
-TOPIC_TF_STATIC = '/tf_static'
+TOPIC_SCAN = "/scan"
+TOPIC_ODOM = "/odom"
+TOPIC_ENCODERS = "/encoders"
+TOPIC_TF_STATIC = "/tf_static"
 
 
 @dataclass
@@ -70,8 +70,8 @@ class ConvertReport:
     retimed: int = 0
     start_ns: int = 0
     end_ns: int = 0
-    odom_sync: str = ''  # CARMEN: how the scans pair with the odometry (also in the bag's custom data)
-    time_source: str = 'log'  # CARMEN: 'log', 'log, N by line order' or 'line order' (LogTimes)
+    odom_sync: str = ""  # CARMEN: how the scans pair with the odometry (also in the bag's custom data)
+    time_source: str = "log"  # CARMEN: 'log', 'log, N by line order' or 'line order' (LogTimes)
     line_order: int = 0  # CARMEN: messages whose header stamp was taken from their line's place
     #: CARMEN: a "no return" range inferred from the data (m) and its beams, written as +inf
     sentinel_m: float | None = None
@@ -84,22 +84,28 @@ class ConvertReport:
 
     def summary(self) -> str:
         """Several human-readable lines for the CLI."""
-        lines = [f'{self.source} -> {self.out_bag} ({self.storage}, {self.duration_s:.1f} s)']
-        lines += [f'  {t}: {n}' for t, n in sorted(self.counts.items())]
+        lines = [f"{self.source} -> {self.out_bag} ({self.storage}, {self.duration_s:.1f} s)"]
+        lines += [f"  {t}: {n}" for t, n in sorted(self.counts.items())]
         if self.sentinel_m is not None:
-            lines.append(f'  no return: {self.sentinel_count} beams at exactly {self.sentinel_m:g} m (inferred '
-                         f'from the data: the log\'s largest range, far more frequent than any other) '
-                         f'written as +inf, range_max {self.sentinel_m:g} m')
+            lines.append(
+                f"  no return: {self.sentinel_count} beams at exactly {self.sentinel_m:g} m (inferred "
+                f"from the data: the log's largest range, far more frequent than any other) "
+                f"written as +inf, range_max {self.sentinel_m:g} m"
+            )
         if self.skipped:
-            lines.append(f'  skipped {sum(self.skipped.values())}: ' + ', '.join(
-                f'{k} {v}' for k, v in sorted(self.skipped.items())))
-        if self.time_source != 'log':
-            lines.append(f'  header stamps: {self.time_source}')
+            lines.append(
+                f"  skipped {sum(self.skipped.values())}: "
+                + ", ".join(f"{k} {v}" for k, v in sorted(self.skipped.items()))
+            )
+        if self.time_source != "log":
+            lines.append(f"  header stamps: {self.time_source}")
         if self.retimed:
-            lines.append(f'  record time moved forward for {self.retimed} log lines\' messages '
-                         '(log time repeats or steps back; header stamps kept)')
-        lines += [f'  warning: {w}' for w in self.warnings]
-        return '\n'.join(lines)
+            lines.append(
+                f"  record time moved forward for {self.retimed} log lines' messages "
+                "(log time repeats or steps back; header stamps kept)"
+            )
+        lines += [f"  warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
 
 
 class _Clock:
@@ -131,8 +137,9 @@ class LogTimes:
     """The header stamp of each CARMEN message (``ns``: id(message) -> ns), and how they came:
     ``source`` "log" (the log's own), "log, N by line order", or "line order"; ``retimed``:
     messages whose stamp is not the log's; ``warnings``: what was done, with file:line and counts."""
+
     ns: dict
-    source: str = 'log'
+    source: str = "log"
     retimed: int = 0
     warnings: list = field(default_factory=list)
 
@@ -140,6 +147,7 @@ class LogTimes:
 def _nondecreasing_run(t: np.ndarray) -> np.ndarray:
     """Mask of one longest non-decreasing subsequence of `t` (patience sorting, O(n log n))."""
     import bisect
+
     tails: list = []
     tail_idx: list = []
     prev = np.full(len(t), -1, dtype=np.int64)
@@ -160,8 +168,9 @@ def _nondecreasing_run(t: np.ndarray) -> np.ndarray:
     return mask
 
 
-def log_times(scans: list, odoms: list, name: str,
-              tolerance_ns: int = TIME_TOLERANCE_NS, period_ns: int = LINE_ORDER_PERIOD_NS) -> LogTimes:
+def log_times(
+    scans: list, odoms: list, name: str, tolerance_ns: int = TIME_TOLERANCE_NS, period_ns: int = LINE_ORDER_PERIOD_NS
+) -> LogTimes:
     """Header stamps for a CARMEN log's messages, in the log's time where it orders the file.
 
     * Scan times that do not order the log (fewer than half the steps between consecutive scans
@@ -184,13 +193,17 @@ def log_times(scans: list, odoms: list, name: str,
         for i, s in enumerate(scans):
             out.ns[id(s)] = base + i * period_ns
         rep = int(np.count_nonzero(np.diff(sc) == 0))
-        out.source, out.retimed = 'line order', len(scans)
+        out.source, out.retimed = "line order", len(scans)
         out.warnings.append(
-            f'{name}:{scans[0].line_no}: scan timestamps do not order the log (only {forward} of '
-            f'{len(sc) - 1} steps go forward, {rep} repeat; first {sc[0] / 1e9:g} s, last {sc[-1] / 1e9:g} s): '
-            f'stamps from the line order, one scan per {period_ns / 1e9:g} s from {base / 1e9:g} s'
-            + (f'; odometry from the laser lines, the {len(odoms)} ODOM lines not used (their times '
-               'cannot be placed)' if odoms else ''))
+            f"{name}:{scans[0].line_no}: scan timestamps do not order the log (only {forward} of "
+            f"{len(sc) - 1} steps go forward, {rep} repeat; first {sc[0] / 1e9:g} s, last {sc[-1] / 1e9:g} s): "
+            f"stamps from the line order, one scan per {period_ns / 1e9:g} s from {base / 1e9:g} s"
+            + (
+                f"; odometry from the laser lines, the {len(odoms)} ODOM lines not used (their times cannot be placed)"
+                if odoms
+                else ""
+            )
+        )
         return out
     events = sorted([(s.line_no, s) for s in scans] + [(o.line_no, o) for o in odoms], key=lambda e: e[0])
     t = np.array([e[1].stamp_ns for e in events], dtype=np.int64)
@@ -209,18 +222,19 @@ def log_times(scans: list, odoms: list, name: str,
         out.ns[id(ev)] = int(v)
     if len(bad):
         out.retimed = len(bad)
-        out.source = f'log, {len(bad)} by line order'
+        out.source = f"log, {len(bad)} by line order"
         kinds: dict = {}
         for i in bad:
-            kind = 'scan' if hasattr(events[i][1], 'ranges') else 'ODOM'
+            kind = "scan" if hasattr(events[i][1], "ranges") else "ODOM"
             kinds[kind] = kinds.get(kind, 0) + 1
         i0 = int(bad[0])
-        what = ' and '.join(f'{n} {k}' for k, n in sorted(kinds.items()))
+        what = " and ".join(f"{n} {k}" for k, n in sorted(kinds.items()))
         out.warnings.append(
-            f'{name}:{events[i0][0]}: {what} timestamps out of the log\'s time order (negative, or more '
-            f'than {tolerance_ns / 1e9:g} s off the time of the lines around them; first: {t[i0] / 1e9:g} s '
-            f'where {implied[i0] / 1e9:.3f} s fits): their stamps from their place in the file, between the '
-            'neighbouring lines\' times')
+            f"{name}:{events[i0][0]}: {what} timestamps out of the log's time order (negative, or more "
+            f"than {tolerance_ns / 1e9:g} s off the time of the lines around them; first: {t[i0] / 1e9:g} s "
+            f"where {implied[i0] / 1e9:.3f} s fits): their stamps from their place in the file, between the "
+            "neighbouring lines' times"
+        )
     return out
 
 
@@ -235,9 +249,15 @@ def laser_offset(laser_pose: np.ndarray, odom_pose: np.ndarray) -> tuple[float, 
     return c * dx + s * dy, -s * dx + c * dy, yaw
 
 
-def convert_carmen(log_path: str | os.PathLike, out_bag: str | os.PathLike,
-                   storage: str = 'mcap', no_return_m: float = 80.0, laser_frame: str = 'laser',
-                   base_frame: str = 'base_link', odom_frame: str = 'odom') -> ConvertReport:
+def convert_carmen(
+    log_path: str | os.PathLike,
+    out_bag: str | os.PathLike,
+    storage: str = "mcap",
+    no_return_m: float = 80.0,
+    laser_frame: str = "laser",
+    base_frame: str = "base_link",
+    odom_frame: str = "odom",
+) -> ConvertReport:
     """Convert a CARMEN log (FLASER / ROBOTLASER1 / ODOM) to a rosbag2.
 
     ``/odom`` comes from the ``ODOM`` lines when the log has any, else from the odometry pose
@@ -248,30 +268,37 @@ def convert_carmen(log_path: str | os.PathLike, out_bag: str | os.PathLike,
     """
     log = read_carmen(log_path, no_return_m=no_return_m)
     if not log.scans:
-        why = f'; {log.warnings[0]}' if log.warnings else ''
-        raise ValueError(f'{log_path}: no usable laser scan (skipped: {log.skipped}){why}')
-    report = ConvertReport(source=str(log_path), out_bag=str(out_bag), storage=storage,
-                           skipped=dict(log.skipped), warnings=list(log.warnings),
-                           sentinel_m=log.sentinel_m, sentinel_count=log.sentinel_count)
+        why = f"; {log.warnings[0]}" if log.warnings else ""
+        raise ValueError(f"{log_path}: no usable laser scan (skipped: {log.skipped}){why}")
+    report = ConvertReport(
+        source=str(log_path),
+        out_bag=str(out_bag),
+        storage=storage,
+        skipped=dict(log.skipped),
+        warnings=list(log.warnings),
+        sentinel_m=log.sentinel_m,
+        sentinel_count=log.sentinel_count,
+    )
     name = os.path.basename(str(log_path))
     times = log_times(log.scans, log.odoms, name)
     report.warnings += times.warnings
     report.time_source = times.source
     report.line_order = times.retimed
-    use_odom_lines = bool(log.odoms) and times.source != 'line order'
+    use_odom_lines = bool(log.odoms) and times.source != "line order"
     if log.odoms and not use_odom_lines:
-        report.skipped['ODOM (log times unusable)'] = len(log.odoms)
+        report.skipped["ODOM (log times unusable)"] = len(log.odoms)
     stamp = times.ns  # id(message) -> header stamp (ns)
-    report.odom_sync = 'exact'
+    report.odom_sync = "exact"
     if use_odom_lines:
         odom_stamps = {stamp[id(o)] for o in log.odoms}
         paired = sum(stamp[id(s)] in odom_stamps for s in log.scans)
         if paired < 0.9 * len(log.scans):
-            report.odom_sync = 'interpolate'
+            report.odom_sync = "interpolate"
             report.warnings.append(
-                f'odometry from {len(log.odoms)} ODOM lines, logged at their own times ({paired} of '
-                f'{len(log.scans)} scans have an ODOM line with their stamp): the bag says '
-                f'odom_sync interpolate')
+                f"odometry from {len(log.odoms)} ODOM lines, logged at their own times ({paired} of "
+                f"{len(log.scans)} scans have an ODOM line with their stamp): the bag says "
+                f"odom_sync interpolate"
+            )
     events: list = [(s.line_no, s) for s in log.scans]
     if use_odom_lines:
         events += [(o.line_no, o) for o in log.odoms]
@@ -280,83 +307,98 @@ def convert_carmen(log_path: str | os.PathLike, out_bag: str | os.PathLike,
     first = log.scans[0]
     lx, ly, lyaw = laser_offset(first.laser_pose, first.odom_pose)
     if np.any(np.abs([lx, ly, lyaw]) > 1e-9):
-        report.warnings.append(f'{base_frame} -> {laser_frame} from the first scan: '
-                               f'x={lx:.4f} m y={ly:.4f} m yaw={lyaw:.4f} rad')
+        report.warnings.append(
+            f"{base_frame} -> {laser_frame} from the first scan: x={lx:.4f} m y={ly:.4f} m yaw={lyaw:.4f} rad"
+        )
     clock = _Clock()
     with open_writer(out_bag, storage=storage) as bag:
-        bag.add_connection(TOPIC_TF_STATIC, 'tf2_msgs/msg/TFMessage')
-        bag.add_connection(TOPIC_ODOM, 'nav_msgs/msg/Odometry')
-        bag.add_connection(TOPIC_SCAN, 'sensor_msgs/msg/LaserScan')
-        bag.set_custom_data('pf_slam.format', 'carmen')  # pf-slam run: the indoor profile
-        bag.set_custom_data('pf_slam.source', os.path.basename(str(log_path)))
-        bag.set_custom_data('pf_slam.odom_source', 'ODOM' if use_odom_lines else 'laser lines')
+        bag.add_connection(TOPIC_TF_STATIC, "tf2_msgs/msg/TFMessage")
+        bag.add_connection(TOPIC_ODOM, "nav_msgs/msg/Odometry")
+        bag.add_connection(TOPIC_SCAN, "sensor_msgs/msg/LaserScan")
+        bag.set_custom_data("pf_slam.format", "carmen")  # pf-slam run: the indoor profile
+        bag.set_custom_data("pf_slam.source", os.path.basename(str(log_path)))
+        bag.set_custom_data("pf_slam.odom_source", "ODOM" if use_odom_lines else "laser lines")
         # how the scans pair with the odometry (pf-slam run uses it: the laser lines' own
         # odometry shares their stamps; ODOM lines are logged at their own times)
-        bag.set_custom_data('pf_slam.odom_sync', report.odom_sync)
+        bag.set_custom_data("pf_slam.odom_sync", report.odom_sync)
         # where the header stamps come from: the log's times ("log"), the log's with some taken
         # from their line's place ("log, N by line order"), or the line order alone
-        bag.set_custom_data('pf_slam.time_source', times.source)
+        bag.set_custom_data("pf_slam.time_source", times.source)
         t0 = stamp[id(events[0][1])]
-        bag.write(TOPIC_TF_STATIC, t0, tf_static(
-            t0, [(base_frame, laser_frame, (lx, ly, 0.0), yaw_to_quat(lyaw))]))
+        bag.write(TOPIC_TF_STATIC, t0, tf_static(t0, [(base_frame, laser_frame, (lx, ly, 0.0), yaw_to_quat(lyaw))]))
         for _, ev in events:
             st = stamp[id(ev)]
             t_rec = clock(st)
-            if hasattr(ev, 'ranges'):
+            if hasattr(ev, "ranges"):
                 if not use_odom_lines:
-                    twist = (ev.tv, ev.rv) if ev.kind == 'ROBOTLASER1' else None
-                    bag.write(TOPIC_ODOM, t_rec, odometry(
-                        st, odom_frame, base_frame, ev.odom_pose, twist))
-                bag.write(TOPIC_SCAN, t_rec, laser_scan(
-                    st, laser_frame, ev.angle_min, ev.angle_increment, ev.ranges,
-                    0.0, ev.range_max))
+                    twist = (ev.tv, ev.rv) if ev.kind == "ROBOTLASER1" else None
+                    bag.write(TOPIC_ODOM, t_rec, odometry(st, odom_frame, base_frame, ev.odom_pose, twist))
+                bag.write(
+                    TOPIC_SCAN,
+                    t_rec,
+                    laser_scan(st, laser_frame, ev.angle_min, ev.angle_increment, ev.ranges, 0.0, ev.range_max),
+                )
             else:
-                bag.write(TOPIC_ODOM, t_rec, odometry(
-                    st, odom_frame, base_frame, ev.pose, (ev.tv, ev.rv)))
+                bag.write(TOPIC_ODOM, t_rec, odometry(st, odom_frame, base_frame, ev.pose, (ev.tv, ev.rv)))
         report.counts = dict(bag.counts)
     report.retimed = clock.retimed
     report.start_ns, report.end_ns = t0, clock.last
     return report
 
 
-def convert_mines(dat_path: str | os.PathLike, out_bag: str | os.PathLike,
-                  storage: str = 'mcap', ticks_per_rev: int = 2000,
-                  wheel_radius_m: float = 0.077, half_axle_m: float = 0.165,
-                  laser_frame: str = 'laser', base_frame: str = 'base_link') -> ConvertReport:
+def convert_mines(
+    dat_path: str | os.PathLike,
+    out_bag: str | os.PathLike,
+    storage: str = "mcap",
+    ticks_per_rev: int = 2000,
+    wheel_radius_m: float = 0.077,
+    half_axle_m: float = 0.165,
+    laser_frame: str = "laser",
+    base_frame: str = "base_link",
+) -> ConvertReport:
     """Convert a Mines ``.dat`` log to a rosbag2 (``/encoders``, ``/scan``, ``/tf_static``).
 
     One ``/encoders`` and one ``/scan`` message per line, same stamp, encoders first.
     Raises ``ValueError`` if the file has no usable line, ``BagError`` if ``out_bag`` exists.
     """
-    log = read_mines(dat_path, ticks_per_rev=ticks_per_rev, wheel_radius_m=wheel_radius_m,
-                     half_axle_m=half_axle_m)
+    log = read_mines(dat_path, ticks_per_rev=ticks_per_rev, wheel_radius_m=wheel_radius_m, half_axle_m=half_axle_m)
     n = len(log.stamps_us)
     if n == 0:
-        raise ValueError(f'{dat_path}: no usable line (skipped: {log.skipped})')
-    report = ConvertReport(source=str(dat_path), out_bag=str(out_bag), storage=storage,
-                           skipped=dict(log.skipped), warnings=list(log.warnings))
+        raise ValueError(f"{dat_path}: no usable line (skipped: {log.skipped})")
+    report = ConvertReport(
+        source=str(dat_path),
+        out_bag=str(out_bag),
+        storage=storage,
+        skipped=dict(log.skipped),
+        warnings=list(log.warnings),
+    )
     stamps = log.stamps_ns
     left, right = log.left_wheel_rad, log.right_wheel_rad
     clock = _Clock()
     with open_writer(out_bag, storage=storage) as bag:
-        bag.add_connection(TOPIC_TF_STATIC, 'tf2_msgs/msg/TFMessage')
-        bag.add_connection(TOPIC_ENCODERS, 'sensor_msgs/msg/JointState')
-        bag.add_connection(TOPIC_SCAN, 'sensor_msgs/msg/LaserScan')
-        bag.set_custom_data('pf_slam.format', 'mines')  # pf-slam run: the mines profile
-        bag.set_custom_data('pf_slam.source', os.path.basename(str(dat_path)))
-        bag.set_custom_data('pf_slam.ticks_per_rev', str(int(ticks_per_rev)))
-        bag.set_custom_data('pf_slam.wheel_radius_m', repr(float(wheel_radius_m)))
-        bag.set_custom_data('pf_slam.half_axle_m', repr(float(half_axle_m)))
+        bag.add_connection(TOPIC_TF_STATIC, "tf2_msgs/msg/TFMessage")
+        bag.add_connection(TOPIC_ENCODERS, "sensor_msgs/msg/JointState")
+        bag.add_connection(TOPIC_SCAN, "sensor_msgs/msg/LaserScan")
+        bag.set_custom_data("pf_slam.format", "mines")  # pf-slam run: the mines profile
+        bag.set_custom_data("pf_slam.source", os.path.basename(str(dat_path)))
+        bag.set_custom_data("pf_slam.ticks_per_rev", str(int(ticks_per_rev)))
+        bag.set_custom_data("pf_slam.wheel_radius_m", repr(float(wheel_radius_m)))
+        bag.set_custom_data("pf_slam.half_axle_m", repr(float(half_axle_m)))
         t0 = int(stamps[0])
-        bag.write(TOPIC_TF_STATIC, t0, tf_static(
-            t0, [(base_frame, laser_frame, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))]))
+        bag.write(
+            TOPIC_TF_STATIC, t0, tf_static(t0, [(base_frame, laser_frame, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))])
+        )
         for i in range(n):
             st = int(stamps[i])
             t_rec = clock(st)
             bag.write(TOPIC_ENCODERS, t_rec, joint_state_wheels(st, left[i], right[i]))
-            bag.write(TOPIC_SCAN, t_rec, laser_scan(
-                st, laser_frame, log.angle_min, log.angle_increment, log.ranges[i],
-                log.range_min, log.range_max))
+            bag.write(
+                TOPIC_SCAN,
+                t_rec,
+                laser_scan(
+                    st, laser_frame, log.angle_min, log.angle_increment, log.ranges[i], log.range_min, log.range_max
+                ),
+            )
         report.counts = dict(bag.counts)
     report.retimed = clock.retimed
     report.start_ns, report.end_ns = t0, clock.last

@@ -33,10 +33,10 @@ import numpy as np
 from .skips import SkipLog
 
 __all__ = [
-    'MINES_ANGLE_INCREMENT',
-    'MINES_ANGLE_MIN',
-    'MinesLog',
-    'read_mines',
+    "MINES_ANGLE_INCREMENT",
+    "MINES_ANGLE_MIN",
+    "MinesLog",
+    "read_mines",
 ]
 
 N_FIELDS = 707
@@ -87,7 +87,7 @@ class MinesLog:
     line_nos: np.ndarray
     skipped: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
-    path: str = ''
+    path: str = ""
 
     @property
     def left_wheel_rad(self) -> np.ndarray:
@@ -105,9 +105,14 @@ class MinesLog:
         return self.stamps_us * 1000
 
 
-def read_mines(path: str | os.PathLike, ticks_per_rev: int = 2000,
-               wheel_radius_m: float = 0.077, half_axle_m: float = 0.165,
-               range_min_m: float = 0.02, range_max_m: float = 5.6) -> MinesLog:
+def read_mines(
+    path: str | os.PathLike,
+    ticks_per_rev: int = 2000,
+    wheel_radius_m: float = 0.077,
+    half_axle_m: float = 0.165,
+    range_min_m: float = 0.02,
+    range_max_m: float = 5.6,
+) -> MinesLog:
     """Read a Mines ``.dat`` log (see the module docstring for the format and conventions).
 
     Parameters
@@ -122,36 +127,40 @@ def read_mines(path: str | os.PathLike, ticks_per_rev: int = 2000,
         Valid range interval (m); readings below ``range_min_m`` (0 and error codes) become
         ``+inf``; readings above ``range_max_m`` are kept (the LaserScan consumer clips them).
     """
-    for name, val in (('ticks_per_rev', ticks_per_rev), ('wheel_radius_m', wheel_radius_m),
-                      ('half_axle_m', half_axle_m), ('range_max_m', range_max_m)):
+    for name, val in (
+        ("ticks_per_rev", ticks_per_rev),
+        ("wheel_radius_m", wheel_radius_m),
+        ("half_axle_m", half_axle_m),
+        ("range_max_m", range_max_m),
+    ):
         if not val > 0:
-            raise ValueError(f'{name} must be > 0, got {val}')
+            raise ValueError(f"{name} must be > 0, got {val}")
     base = os.path.basename(str(path))
     rows: list[np.ndarray] = []
     line_nos: list[int] = []
     skipped: dict[str, int] = {}
     warnings: list[str] = []
     bad = SkipLog(skipped, warnings)
-    with open(path, encoding='utf-8', errors='replace') as fh:
+    with open(path, encoding="utf-8", errors="replace") as fh:
         for line_no, line in enumerate(fh, start=1):
             tok = line.split()
-            if not tok or tok[0].startswith('#'):
+            if not tok or tok[0].startswith("#"):
                 continue
             why = None
             if len(tok) != N_FIELDS:
-                why = f'expected {N_FIELDS} fields, got {len(tok)}'
+                why = f"expected {N_FIELDS} fields, got {len(tok)}"
             else:
                 try:
                     row = np.array(tok, dtype=np.float64)
                 except ValueError:
-                    why = 'non-numeric field'
+                    why = "non-numeric field"
                 else:
                     if not np.all(np.isfinite(row)):
-                        why = 'NaN or inf field'
+                        why = "NaN or inf field"
                     elif row[0] != int(row[0]) or row[2] != int(row[2]) or row[3] != int(row[3]):
-                        why = 'timestamp or ticks not integers'
+                        why = "timestamp or ticks not integers"
             if why is not None:
-                bad.skip(base, line_no, why, key='malformed')
+                bad.skip(base, line_no, why, key="malformed")
                 continue
             rows.append(row)
             line_nos.append(line_no)
@@ -159,20 +168,32 @@ def read_mines(path: str | os.PathLike, ticks_per_rev: int = 2000,
 
     data = np.array(rows, dtype=np.float64).reshape(-1, N_FIELDS)
     stamps_us = data[:, 0].astype(np.int64)
-    mm = data[:, FIRST_RANGE_FIELD:FIRST_RANGE_FIELD + N_BEAMS]
+    mm = data[:, FIRST_RANGE_FIELD : FIRST_RANGE_FIELD + N_BEAMS]
     ranges = (mm * 1e-3).astype(np.float32)
     ranges[mm < range_min_m * 1000.0] = np.inf
     d = np.diff(stamps_us)
     if np.any(d <= 0):
         first = line_nos[int(np.flatnonzero(d <= 0)[0]) + 1]
-        warnings.append(f'{base}: {int(np.count_nonzero(d == 0))} timestamps repeat and '
-                        f'{int(np.count_nonzero(d < 0))} step back (first at line {first}); '
-                        'kept in file order')
+        warnings.append(
+            f"{base}: {int(np.count_nonzero(d == 0))} timestamps repeat and "
+            f"{int(np.count_nonzero(d < 0))} step back (first at line {first}); "
+            "kept in file order"
+        )
     return MinesLog(
-        stamps_s=stamps_us.astype(np.float64) * 1e-6, stamps_us=stamps_us,
-        left_ticks=data[:, 2].astype(np.int64), right_ticks=data[:, 3].astype(np.int64),
-        ranges=ranges, angle_min=MINES_ANGLE_MIN, angle_increment=MINES_ANGLE_INCREMENT,
-        range_min=float(range_min_m), range_max=float(range_max_m),
-        ticks_per_rev=int(ticks_per_rev), wheel_radius_m=float(wheel_radius_m),
-        half_axle_m=float(half_axle_m), line_nos=np.array(line_nos, dtype=np.int64),
-        skipped=skipped, warnings=warnings, path=str(path))
+        stamps_s=stamps_us.astype(np.float64) * 1e-6,
+        stamps_us=stamps_us,
+        left_ticks=data[:, 2].astype(np.int64),
+        right_ticks=data[:, 3].astype(np.int64),
+        ranges=ranges,
+        angle_min=MINES_ANGLE_MIN,
+        angle_increment=MINES_ANGLE_INCREMENT,
+        range_min=float(range_min_m),
+        range_max=float(range_max_m),
+        ticks_per_rev=int(ticks_per_rev),
+        wheel_radius_m=float(wheel_radius_m),
+        half_axle_m=float(half_axle_m),
+        line_nos=np.array(line_nos, dtype=np.int64),
+        skipped=skipped,
+        warnings=warnings,
+        path=str(path),
+    )

@@ -9,7 +9,7 @@ were not listed.
 
 from __future__ import annotations
 
-__all__ = ['MAX_LINE_WARNINGS', 'SkipLog']
+__all__ = ["MAX_LINE_WARNINGS", "SkipLog"]
 
 #: Per-file warnings kept in full; beyond this only the counts grow.
 MAX_LINE_WARNINGS = 100
@@ -30,8 +30,7 @@ class SkipLog:
         self.skipped, self.warnings = skipped, warnings
         self._per_file: dict[str, int] = {}
 
-    def skip(self, where: str, line_no: int | None, reason: str, key: str | None = None,
-             what: str = 'line') -> None:
+    def skip(self, where: str, line_no: int | None, reason: str, key: str | None = None, what: str = "line") -> None:
         """Count one skipped ``what`` of file ``where`` (at ``line_no``, if it has lines).
 
         ``key`` is the ``skipped`` entry to increment (default: ``reason``).
@@ -40,12 +39,12 @@ class SkipLog:
         self.skipped[key] = self.skipped.get(key, 0) + 1
         n = self._per_file[where] = self._per_file.get(where, 0) + 1
         if n <= MAX_LINE_WARNINGS:
-            at = where if line_no is None else f'{where}:{line_no}'
-            self.warnings.append(f'{at}: {reason}; {what} skipped')
+            at = where if line_no is None else f"{where}:{line_no}"
+            self.warnings.append(f"{at}: {reason}; {what} skipped")
 
     def finish(self) -> None:
         """Append one line per file whose skips were not all listed (call once, at the end)."""
         for where, n in self._per_file.items():
             if n > MAX_LINE_WARNINGS:
-                self.warnings.append(f'{where}: {n - MAX_LINE_WARNINGS} more skipped not listed')
+                self.warnings.append(f"{where}: {n - MAX_LINE_WARNINGS} more skipped not listed")
         self._per_file.clear()

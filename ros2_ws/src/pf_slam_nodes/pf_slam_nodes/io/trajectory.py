@@ -19,7 +19,7 @@ import numpy as np
 
 from ..core.geometry import quat_to_yaw
 
-__all__ = ['format_stamp', 'read_relations', 'read_trajectory', 'write_tum']
+__all__ = ["format_stamp", "read_relations", "read_trajectory", "write_tum"]
 
 
 def format_stamp(t: float) -> str:
@@ -28,11 +28,9 @@ def format_stamp(t: float) -> str:
     ``976052890.244111`` -> ``'976052890.244111000'`` (plain ``'%.9f'`` would print the
     float's binary noise, ``'976052890.244110942'``).
     """
-    text = np.format_float_positional(float(t), precision=9, unique=True, fractional=True,
-                                      trim='k')
-    whole, _, frac = text.partition('.')
-    return f'{whole}.{frac:0<9}'
-
+    text = np.format_float_positional(float(t), precision=9, unique=True, fractional=True, trim="k")
+    whole, _, frac = text.partition(".")
+    return f"{whole}.{frac:0<9}"
 
 
 def write_tum(path: str | os.PathLike, stamps_s: np.ndarray, poses: np.ndarray) -> None:
@@ -50,40 +48,38 @@ def write_tum(path: str | os.PathLike, stamps_s: np.ndarray, poses: np.ndarray) 
     t = np.asarray(stamps_s, dtype=np.float64).ravel()
     p = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
     if len(t) != len(p):
-        raise ValueError(f'stamps_s has {len(t)} entries but poses has {len(p)} rows')
+        raise ValueError(f"stamps_s has {len(t)} entries but poses has {len(p)} rows")
     half = 0.5 * p[:, 2]
-    with open(path, 'w', encoding='utf-8') as fh:
-        fh.write('# timestamp x y z qx qy qz qw\n')
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write("# timestamp x y z qx qy qz qw\n")
         for ti, (x, y, _), qz, qw in zip(t, p, np.sin(half), np.cos(half)):
-            fh.write(f'{format_stamp(ti)} {x:.6f} {y:.6f} 0.000000 '
-                     f'0.000000 0.000000 {qz:.9f} {qw:.9f}\n')
+            fh.write(f"{format_stamp(ti)} {x:.6f} {y:.6f} 0.000000 0.000000 0.000000 {qz:.9f} {qw:.9f}\n")
 
 
 def _read_table(path: str | os.PathLike, allowed: tuple[int, ...]) -> np.ndarray:
     name = os.path.basename(str(path))
     rows: list[list[float]] = []
     ncols = None
-    with open(path, encoding='utf-8') as fh:
+    with open(path, encoding="utf-8") as fh:
         for line_no, line in enumerate(fh, start=1):
             s = line.strip()
-            if not s or s.startswith('#'):
+            if not s or s.startswith("#"):
                 continue
             if line_no == 1 and s[0].isalpha():  # a CSV header row (the car simulator's poses.csv)
                 continue
-            tok = s.replace(',', ' ').split()
+            tok = s.replace(",", " ").split()
             if len(tok) not in allowed:
-                raise ValueError(f'{name}:{line_no}: expected {" or ".join(map(str, allowed))} '
-                                 f'columns, got {len(tok)}')
+                raise ValueError(f"{name}:{line_no}: expected {' or '.join(map(str, allowed))} columns, got {len(tok)}")
             if ncols is None:
                 ncols = len(tok)
             elif len(tok) != ncols:
-                raise ValueError(f'{name}:{line_no}: {len(tok)} columns after {ncols}-column lines')
+                raise ValueError(f"{name}:{line_no}: {len(tok)} columns after {ncols}-column lines")
             try:
                 vals = [float(v) for v in tok]
             except ValueError:
-                raise ValueError(f'{name}:{line_no}: non-numeric value in {s!r}') from None
+                raise ValueError(f"{name}:{line_no}: non-numeric value in {s!r}") from None
             if not all(math.isfinite(v) for v in vals):
-                raise ValueError(f'{name}:{line_no}: NaN or inf in {s!r}')
+                raise ValueError(f"{name}:{line_no}: NaN or inf in {s!r}")
             rows.append(vals)
     if not rows:
         return np.zeros((0, allowed[0]))

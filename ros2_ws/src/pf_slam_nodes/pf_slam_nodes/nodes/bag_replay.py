@@ -17,6 +17,7 @@ published, the damage (message index, record time, cause) goes out on pf_slam/st
 JSON ``{"node": "bag_replay", "error": ...}``) and then replay_status, with the counts published,
 as at the end of a bag, so the graph finishes the scans it has.
 """
+
 from __future__ import annotations
 
 import importlib
@@ -24,11 +25,12 @@ import time
 from typing import Any
 
 from geometry_msgs.msg import PoseStamped
-from pf_slam_interfaces.msg import ReplayStatus
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String, UInt32MultiArray
+
+from pf_slam_interfaces.msg import ReplayStatus
 
 from ..io.bag import BagReadError, bag_info, read_bag
 from ..ros import cdr, qos, topics
@@ -113,8 +115,9 @@ class BagReplay(Node):
         self.create_subscription(PoseStamped, topics.POSE, self._on_progress, qos.pipeline(), raw=True)
         self.create_subscription(String, topics.READY, self._on_ready, qos.latched(depth=10))
         if self.image_topic:
-            self.create_subscription(UInt32MultiArray, topics.TEXTURE_PROGRESS, self._on_texture_progress,
-                                     qos.latched())
+            self.create_subscription(
+                UInt32MultiArray, topics.TEXTURE_PROGRESS, self._on_texture_progress, qos.latched()
+            )
         self.messages = read_bag(self.bag)
         self.pending: tuple[str, str, int, bytes] | None = None
         self.published: dict[str, int] = {t: 0 for t in info["topics"]}
@@ -152,8 +155,7 @@ class BagReplay(Node):
         matched (pf_slam/ready), and the scan topic has its subscriber, the predictor, matched here
         (the correlator and the mapper get the scans they correct from the predictor)."""
         scan_pub = self.publishers_.get(self.scan_topic)
-        return (self.ready_nodes >= self.wait_for
-                and (scan_pub is None or scan_pub.get_subscription_count() >= 1))
+        return self.ready_nodes >= self.wait_for and (scan_pub is None or scan_pub.get_subscription_count() >= 1)
 
     def pump(self, budget: int = 200) -> None:
         """Publish what may be published now (at most `budget` messages)."""
@@ -180,8 +182,11 @@ class BagReplay(Node):
                     self._finish()
                     return
             topic, _msgtype, stamp_ns, raw = self.pending
-            if topic == self.scan_topic and self.rate is None and \
-                    self.scans_published - self.scans_processed >= self.max_in_flight:
+            if (
+                topic == self.scan_topic
+                and self.rate is None
+                and self.scans_published - self.scans_processed >= self.max_in_flight
+            ):
                 self.timer.cancel()  # resumed by _on_progress
                 if self.stall_sent_at != self.scans_published:
                     self.stall_sent_at = self.scans_published
@@ -214,19 +219,30 @@ class BagReplay(Node):
 
     def _damaged(self, e: BagReadError) -> None:
         import json
+
         self.error = e.damage
         self.messages = iter(())
         self.get_logger().error(f"{e.damage}; the replay ends here ({self.scans_published} scans published)")
-        self.pub_node_status.publish(String(data=json.dumps(
-            {"node": "bag_replay", "error": e.damage, "messages_read": e.messages,
-             "last_stamp_ns": e.last_stamp_ns})))
+        self.pub_node_status.publish(
+            String(
+                data=json.dumps(
+                    {
+                        "node": "bag_replay",
+                        "error": e.damage,
+                        "messages_read": e.messages,
+                        "last_stamp_ns": e.last_stamp_ns,
+                    }
+                )
+            )
+        )
 
     def _finish(self) -> None:
         self.done = True
         self.timer.cancel()
         self.pub_status.publish(self._counts(done=True))
-        self.get_logger().info(f"end of bag: {sum(self.published.values())} messages, "
-                               f"{self.scans_published} scans published")
+        self.get_logger().info(
+            f"end of bag: {sum(self.published.values())} messages, {self.scans_published} scans published"
+        )
 
     def _restamped(self, raw: bytes, record_ns: int, fix) -> bytes:
         """The header stamp replaced by the record time ("record") or shifted by `fix` ns."""
@@ -247,4 +263,5 @@ def main(args: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     import sys
+
     sys.exit(main())

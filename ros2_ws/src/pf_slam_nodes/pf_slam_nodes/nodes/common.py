@@ -1,4 +1,5 @@
 """Helpers shared by the nodes: parameters mirrored from the core's config dataclasses."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -8,7 +9,8 @@ import re
 import signal
 import sys
 from collections import deque
-from typing import Any, Callable, TypeVar
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 import numpy as np
 import rclpy
@@ -41,47 +43,47 @@ PARAM_DOCS: dict[str, str] = {
     "bag": "rosbag2 to replay (folder or file; mcap or sqlite3); required",
     "rate": "'max': as fast as the pipeline takes it, lossless (paced on pose); N: N x real time (s/s)",
     "restamp": "topics whose header stamps are rewritten as replayed: 'TOPIC=record' (the bag's record time) or "
-               "'TOPIC=NS' (shifted by NS ns), comma-separated; pf-slam run sets it when the bag's stamps cannot be right",
+    "'TOPIC=NS' (shifted by NS ns), comma-separated; pf-slam run sets it when the bag's stamps cannot be right",
     "max_in_flight": "rate max: at most this many scans published and not yet posed",
     "image_topic": "rate max: the texture node's left stereo topic; its next image waits while max_pairs_in_flight "
-                   "pairs are with the texture node and not waiting for a pose (no pair skipped); '' = no pacing "
-                   "on images (pf-slam run sets it when the texture node runs)",
+    "pairs are with the texture node and not waiting for a pose (no pair skipped); '' = no pacing "
+    "on images (pf-slam run sets it when the texture node runs)",
     "max_pairs_in_flight": "rate max, with image_topic: stereo pairs the texture node may hold (being worked on "
-                           "or queued) before the replay waits",
+    "or queued) before the replay waits",
     "scan_topic": "the bag's LaserScan topic (pacing, end-of-bag counts)",
     "scan_subscribers": "subscriptions the scan topic must have matched before the replay starts",
     "clock_period_s": "/clock goes out at least this often in bag time, and with every scan (s)",
     "sensor_qos": "QoS reliability of the sensor subscriptions (scan, odometry, encoders, gyro): 'reliable' "
-                  "(lossless replay) or 'best_effort' (drivers that publish with the sensor-data QoS)",
+    "(lossless replay) or 'best_effort' (drivers that publish with the sensor-data QoS)",
     "start_delay_s": "wait this long after the graph is ready before the first message (s; like ros2 bag "
-                     "play --delay: time for a viewer on an open --domain to discover the run)",
+    "play --delay: time for a viewer on an open --domain to discover the run)",
     "wait_for": "nodes whose pf_slam/ready announcement the replay waits for before it starts",
     "map_frame": "REP-105 map frame: /map, /path, /pose and particle sets are in it",
     "odom_frame": "REP-105 odom frame: parent of base_frame (dead reckoning), child of map_frame",
     "base_frame": "REP-105 robot frame (base_link): child of odom_frame, parent of the sensor frames",
     "odometry_source": "'odom' (nav_msgs/Odometry on odom), 'encoders' (JointState wheel angles on encoders) or 'tf' "
-                       "(the odom_frame -> base_frame transform on /tf, as a robot's base controller publishes it)",
+    "(the odom_frame -> base_frame transform on /tf, as a robot's base controller publishes it)",
     "odom_sync": "'exact': odometry stamped like each scan (same log line); 'interpolate': asynchronous odometry",
     "fog_format": "yaw from a gyro instead of the wheels: 'none', 'batch' (FogBatch on fog), 'vector3' "
-                  "(Vector3Stamped on fog) or 'imu' (sensor_msgs/Imu on imu, mounted level: angular_velocity.z)",
+    "(Vector3Stamped on fog) or 'imu' (sensor_msgs/Imu on imu, mounted level: angular_velocity.z)",
     "odom_wait_scans": "live inputs: a scan whose odometry has not arrived while this many scans wait behind it is "
-                       "posed with the nearest earlier odometry (counted: odom_not_arrived); 0: off (pf-slam run: "
-                       "the replay's pf_slam/replay_stall decides instead, deterministically)",
+    "posed with the nearest earlier odometry (counted: odom_not_arrived); 0: off (pf-slam run: "
+    "the replay's pf_slam/replay_stall decides instead, deterministically)",
     "stamp_offset_s": "odometry stamps this far (s) ahead of or behind the scan stamps are reported (odom_stamp_offset)",
     "time_gap_s": "scan stamps stepping forward by more than this are counted as a time gap (s)",
     "publish_odom_tf": "publish odom -> base_frame on /tf at every scan (off when the bag carries its own /tf); never "
-                       "with odometry_source tf, and stopped once another node is seen publishing that transform",
+    "with odometry_source tf, and stopped once another node is seen publishing that transform",
     "publish_sensor_tf": "publish base_frame -> the scan's frame on /tf_static from filter.sensor_offset_* / "
-                         "laser.extrinsic (off when the bag's /tf_static has it)",
+    "laser.extrinsic (off when the bag's /tf_static has it)",
     "mount_from_tf": "live: the lidar mount is the first scan's frame in /tf_static + /tf (the predictor decides, "
-                     "the correlator and mapper wait for it on pf_slam/lidar_mount); mount parameters are the fallback",
+    "the correlator and mapper wait for it on pf_slam/lidar_mount); mount parameters are the fallback",
     "mount_wait_s": "mount_from_tf: after the first scan, wait this long for its transform before using the "
-                    "parameters' mount (s)",
+    "parameters' mount (s)",
     "expected_observers": "extra subscribers (e.g. pf-slam run's recorder) that must be matched before the replay starts",
     "mode": "'slam' (build the map) or 'localization' (track the pose on a fixed map: mapper map_file, or any "
-            "map_server's /map; the map is never changed)",
+    "map_server's /map; the map is never changed)",
     "map_file": "mode localization: the map to localize on (map_server .yaml: pf-slam's map.yaml or nav2 map_saver's; "
-                "trinary, scale or raw, negate), published latched on /map; empty: another node publishes /map",
+    "trinary, scale or raw, negate), published latched on /map; empty: another node publishes /map",
     "map_publish_period_s": "/map, /map_metadata and /path are published this often (wall time), and after the last scan (s)",
     "occupied_thresh": "/map: a cell with occupancy probability >= this is 100 (map_server trinary) (probability)",
     "free_thresh": "/map: a cell with occupancy probability <= this is 0; between the two, -1 (probability)",
@@ -151,8 +153,11 @@ def declare_config(node: Node, prefix: str, cls: type | None = None) -> Any:
     for f in dataclasses.fields(cls):
         default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
         name = f"{prefix}.{f.name}"
-        p = node.declare_parameter(name, list(default) if isinstance(default, tuple) else default,
-                                   ParameterDescriptor(dynamic_typing=True, description=docs.get(f.name, "")))
+        p = node.declare_parameter(
+            name,
+            list(default) if isinstance(default, tuple) else default,
+            ParameterDescriptor(dynamic_typing=True, description=docs.get(f.name, "")),
+        )
         v = p.value
         values[f.name] = tuple(float(x) for x in v) if isinstance(default, tuple) else _as_default_type(default, v)
     try:
@@ -167,13 +172,13 @@ def param(node: Node, name: str, default: T) -> T:
     desc = ParameterDescriptor(dynamic_typing=True, description=PARAM_DOCS.get(name, ""))
     v = _as_default_type(default, node.declare_parameter(name, default, desc).value)
     if default is not None and type(v) is not type(default):
-        raise ValueError(f"node {node.get_name()}: parameter '{name}' must be "
-                         f"{type(default).__name__}, got {v!r}")
+        raise ValueError(f"node {node.get_name()}: parameter '{name}' must be {type(default).__name__}, got {v!r}")
     return v
 
 
-def announce_when_matched(node: Node, needs: list[tuple[Any, int]], period_s: float = 0.05,
-                          name: str | None = None) -> None:
+def announce_when_matched(
+    node: Node, needs: list[tuple[Any, int]], period_s: float = 0.05, name: str | None = None
+) -> None:
     """Publish `name` (default: the node's name) on pf_slam/ready (latched) once each publisher in
     `needs` has at least its number of matched subscriptions (each subscription: of matched
     publishers, for an observer such as the result recorder).
@@ -186,6 +191,7 @@ def announce_when_matched(node: Node, needs: list[tuple[Any, int]], period_s: fl
     from std_msgs.msg import String
 
     from ..ros import qos, topics
+
     pub = node.create_publisher(String, topics.READY, qos.latched(depth=1))
     timer = None
 
@@ -193,16 +199,20 @@ def announce_when_matched(node: Node, needs: list[tuple[Any, int]], period_s: fl
         return e.get_subscription_count() if isinstance(e, Publisher) else e.get_publisher_count()
 
     def peers(e: Any) -> list[str]:
-        infos = (node.get_subscriptions_info_by_topic if isinstance(e, Publisher)
-                 else node.get_publishers_info_by_topic)(e.topic_name)
+        infos = (
+            node.get_subscriptions_info_by_topic if isinstance(e, Publisher) else node.get_publishers_info_by_topic
+        )(e.topic_name)
         return [i.node_name for i in infos]
 
     def check() -> None:
         if all(matched(p) >= n for p, n in needs):
-            node.get_logger().info(f"ready ({name or node.get_name()}): " + ", ".join(
-                f"{p.topic_name} matched {matched(p)} {peers(p)}" for p, _ in needs))
+            node.get_logger().info(
+                f"ready ({name or node.get_name()}): "
+                + ", ".join(f"{p.topic_name} matched {matched(p)} {peers(p)}" for p, _ in needs)
+            )
             pub.publish(String(data=name or node.get_name()))
             timer.cancel()
+
     timer = node.create_timer(period_s, check)
 
 
@@ -231,6 +241,7 @@ class ScanQueue:
 
     def _stamp(self, pos: int) -> int:
         from ..ros.convert import stamp_ns_from_cdr
+
         return stamp_ns_from_cdr(self._raw[pos])
 
     def _find(self, index: int, stamp_ns: int) -> int | None:
@@ -255,6 +266,7 @@ class ScanQueue:
         before it are forgotten."""
         from rclpy.serialization import deserialize_message
         from sensor_msgs.msg import LaserScan
+
         pos = self._find(index, stamp_ns)
         if pos is None:
             raise IndexError(f"scan {index} is not queued (have {self._first}..{self.received - 1})")
@@ -274,6 +286,7 @@ def scan_fields(scan) -> tuple[np.ndarray, np.ndarray, float, float]:
     if scan is None:
         return np.empty(0), np.empty(0), 0.0, math.inf
     from ..ros.convert import scan_arrays
+
     return (*scan_arrays(scan), float(scan.range_min), float(scan.range_max))
 
 
@@ -291,6 +304,7 @@ def status_publisher(node: Node, status: Callable[[], dict]) -> Callable[[], Non
     from std_msgs.msg import String
 
     from ..ros import qos, topics
+
     pub = node.create_publisher(String, topics.STATUS, qos.latched())
     sent: list[dict] = []
 
@@ -299,6 +313,7 @@ def status_publisher(node: Node, status: Callable[[], dict]) -> Callable[[], Non
         if not sent or s != sent[0]:
             pub.publish(String(data=json.dumps(s)))
             sent[:] = [s]
+
     node.create_timer(1.0, publish)
     publish()
     return publish
@@ -311,6 +326,7 @@ def die_with_parent() -> None:
     if not parent or not sys.platform.startswith("linux"):
         return
     import ctypes
+
     ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # 1 = PR_SET_PDEATHSIG
     if os.getppid() != int(parent):  # the parent ended before prctl took effect
         sys.exit(1)
@@ -321,14 +337,18 @@ def warn_undeclared(node: Node) -> list[str]:
     declares: ROS ignores them, so a typo would silently keep the default. Names another node
     declares are not warned about ('/**' values reach every node). Returns the names."""
     from .declared import RUN_KEYS_PREFIXES, declared_by, nearest
+
     by = declared_by()
-    names = sorted(k for k in getattr(node, "_parameter_overrides", {})
-                   if k not in by and not node.has_parameter(k)
-                   and not k.startswith(("qos_overrides.",) + RUN_KEYS_PREFIXES))
+    names = sorted(
+        k
+        for k in getattr(node, "_parameter_overrides", {})
+        if k not in by and not node.has_parameter(k) and not k.startswith(("qos_overrides.",) + RUN_KEYS_PREFIXES)
+    )
     for k in names:
         near = nearest(k, by)
-        node.get_logger().warning(f"parameter '{k}' is set but no node declares it: ignored"
-                                  + (f" (nearest known: '{near}')" if near else ""))
+        node.get_logger().warning(
+            f"parameter '{k}' is set but no node declares it: ignored" + (f" (nearest known: '{near}')" if near else "")
+        )
     return names
 
 
@@ -339,6 +359,7 @@ def follow_clock(node, log: Callable[[str], None] | None = None) -> None:
     from rosgraph_msgs.msg import Clock
 
     from ..ros import qos, topics
+
     if "use_sim_time" in getattr(node, "_parameter_overrides", {}):
         return
     holder: list = []
@@ -349,6 +370,7 @@ def follow_clock(node, log: Callable[[str], None] | None = None) -> None:
         node.destroy_subscription(holder.pop())
         node.set_parameters([Parameter("use_sim_time", Parameter.Type.BOOL, True)])
         (log or node.get_logger().info)(f"{node.get_name()}: /clock is published: use_sim_time true")
+
     holder.append(node.create_subscription(Clock, topics.CLOCK, on_clock, qos.outputs(10)))
 
 

@@ -21,32 +21,46 @@ correction and never for a grid patch. That correction replaces the set with an 
 localization.use_initial_pose); an initialpose message (PoseWithCovarianceStamped, rviz2's
 "2D Pose Estimate") re-initialises the set around it at the next correction (core/localization.py).
 """
+
 from __future__ import annotations
 
 from collections import deque
 
 import numpy as np
-
 from geometry_msgs.msg import PoseArray, PoseWithCovarianceStamped
 from nav_msgs.msg import OccupancyGrid
-from pf_slam_interfaces.msg import ParticleArray
 from rclpy.node import Node
 from sensor_msgs.msg import LaserScan
+
+from pf_slam_interfaces.msg import ParticleArray
 
 from ..core.geometry import compose, quat_to_yaw
 from ..core.stages import CorrectionStage, MapPatch
 from ..ros import cdr, convert, qos, topics
-from .common import (ScanQueue, announce_when_matched, declare_config, mount_of, param, run_node, scan_fields,
-                     status_publisher)
+from .common import (
+    ScanQueue,
+    announce_when_matched,
+    declare_config,
+    mount_of,
+    param,
+    run_node,
+    scan_fields,
+    status_publisher,
+)
 
 
 class Correlator(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("correlator", **kwargs)
         filter_cfg = declare_config(self, "filter")
-        self.stage = CorrectionStage(filter_cfg, declare_config(self, "grid"),
-                                     declare_config(self, "correlation"), declare_config(self, "resample"),
-                                     declare_config(self, "laser"), declare_config(self, "localization"))
+        self.stage = CorrectionStage(
+            filter_cfg,
+            declare_config(self, "grid"),
+            declare_config(self, "correlation"),
+            declare_config(self, "resample"),
+            declare_config(self, "laser"),
+            declare_config(self, "localization"),
+        )
         self.mode = param(self, "mode", "slam")
         if self.mode not in ("slam", "localization"):
             raise ValueError(f"node correlator: parameter 'mode' must be 'slam' or 'localization', got {self.mode!r}")
@@ -56,8 +70,9 @@ class Correlator(Node):
         self.cloud_cdr = cdr.PoseArrayWriter(self.map_frame)
         if self.mode == "localization":
             self.create_subscription(OccupancyGrid, topics.MAP, self._on_map, qos.latched())
-            self.create_subscription(PoseWithCovarianceStamped, topics.INITIAL_POSE, self._on_initial_pose,
-                                     qos.outputs(5))
+            self.create_subscription(
+                PoseWithCovarianceStamped, topics.INITIAL_POSE, self._on_initial_pose, qos.outputs(5)
+            )
         self.scans = ScanQueue()
         self.predicted: deque[ParticleArray] = deque()
         self.grids_received = 0
@@ -73,6 +88,7 @@ class Correlator(Node):
         self.mount_ready = not param(self, "mount_from_tf", False)  # else: wait for the predictor's decision
         if not self.mount_ready:
             from .mount_tf import receive_mount
+
             receive_mount(self, self._on_mount)
 
     def _status(self) -> dict:
@@ -83,6 +99,7 @@ class Correlator(Node):
 
     def _on_mount(self, decision: dict) -> None:
         from .mount_tf import apply_to_stage
+
         if not self.mount_ready:
             apply_to_stage(self.stage, decision["params"])
             self.mount_ready = True
@@ -117,8 +134,10 @@ class Correlator(Node):
             return
         self.stage.set_map(occ, res, origin)
         self.fixed_map = key
-        self.get_logger().info(f"fixed map: {occ.shape[1]} x {occ.shape[0]} cells of {res:g} m, "
-                               f"{self.stage.localizer.free_area_m2:.0f} m^2 free")
+        self.get_logger().info(
+            f"fixed map: {occ.shape[1]} x {occ.shape[0]} cells of {res:g} m, "
+            f"{self.stage.localizer.free_area_m2:.0f} m^2 free"
+        )
         self._drain()
 
     def _on_initial_pose(self, msg: PoseWithCovarianceStamped) -> None:
@@ -135,10 +154,13 @@ class Correlator(Node):
             return
         if not cov.any():  # no covariance given: the parameters' spread
             from ..core.localization import initial_cov
+
             cov = initial_cov(self.stage.loc_cfg)
         self.stage.request_init(mean, cov)
-        self.get_logger().info(f"initialpose x {mean[0]:.3f} y {mean[1]:.3f} yaw {np.degrees(mean[2]):.1f} deg: "
-                               "particles re-initialised around it at the next correction")
+        self.get_logger().info(
+            f"initialpose x {mean[0]:.3f} y {mean[1]:.3f} yaw {np.degrees(mean[2]):.1f} deg: "
+            "particles re-initialised around it at the next correction"
+        )
 
     def _drain(self) -> None:
         # scans and sets both arrive in scan order; the n-th scan is the n-th update's
@@ -148,8 +170,11 @@ class Correlator(Node):
             if pa.update:
                 if self.mode == "localization":
                     if self.stage.localizer is None:  # the fixed map is not here yet
-                        self.get_logger().warn("mode localization: no map on /map yet (mapper map_file, or a "
-                                               "map_server); corrections wait for it", throttle_duration_sec=10.0)
+                        self.get_logger().warn(
+                            "mode localization: no map on /map yet (mapper map_file, or a "
+                            "map_server); corrections wait for it",
+                            throttle_duration_sec=10.0,
+                        )
                         return
                 elif self.grids_received < self.corrections_sent:
                     return  # the map of the previous correction is not here yet
@@ -160,8 +185,11 @@ class Correlator(Node):
             if pa.update:
                 scan = self.scans.take(self.corrections_sent, stamp)
                 if scan is None:
-                    self.get_logger().warn(f"scan {pa.scan_index} was lost on the way here (a replay faster "
-                                           "than the graph): its set is not corrected", throttle_duration_sec=5.0)
+                    self.get_logger().warn(
+                        f"scan {pa.scan_index} was lost on the way here (a replay faster "
+                        "than the graph): its set is not corrected",
+                        throttle_duration_sec=5.0,
+                    )
                 res = self.stage.correct(particles, log_w, *scan_fields(scan), extrinsic=mount_of(pa))
                 particles, log_w, pose = res.particles, res.log_weights, res.pose
                 self.corrections_sent += 1
@@ -171,10 +199,20 @@ class Correlator(Node):
                     self._publish_status()
             else:
                 pose = compose(self.stage.pose, pa.pending_delta)
-            self.pub_updated.publish(convert.particles_to_msg(
-                particles, log_w, stamp_ns=stamp, frame_id=self.map_frame,
-                scan_index=pa.scan_index, update=pa.update, odom_pose=pa.odom_pose,
-                pending_delta=pa.pending_delta, pose=pose, mount=pa.mount))
+            self.pub_updated.publish(
+                convert.particles_to_msg(
+                    particles,
+                    log_w,
+                    stamp_ns=stamp,
+                    frame_id=self.map_frame,
+                    scan_index=pa.scan_index,
+                    update=pa.update,
+                    odom_pose=pa.odom_pose,
+                    pending_delta=pa.pending_delta,
+                    pose=pose,
+                    mount=pa.mount,
+                )
+            )
 
 
 def main(args: list[str] | None = None) -> int:
@@ -183,4 +221,5 @@ def main(args: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     import sys
+
     sys.exit(main())

@@ -6,6 +6,7 @@ The nodes declare these names themselves (``nodes.common.declare_config`` / ``pa
 ``tests/ros/test_paramdoc.py`` builds every node and checks that this table says the same
 (names, nodes, defaults).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -25,26 +26,70 @@ NODE_SECTIONS: dict[str, tuple[str, ...]] = {
 _FRAMES = {"map_frame": "map", "odom_frame": "odom", "base_frame": "base_link"}
 #: Plain (non-config) parameters each node declares, with their defaults.
 NODE_PLAIN: dict[str, dict[str, Any]] = {
-    "bag_replay": {"bag": "", "rate": "max", "max_in_flight": 100, "scan_topic": "/scan",
-                   "image_topic": "", "max_pairs_in_flight": 1, "clock_period_s": 0.01,
-                   "wait_for": ["predictor", "correlator", "mapper"], "restamp": "", "start_delay_s": 0.0},
-    "predictor": {"map_frame": "map", "odometry_source": "odom", "odom_sync": "interpolate",
-                  "time_gap_s": 60.0, "expected_observers": 0, "fog_format": "none",
-                  "odom_frame": "odom", "base_frame": "base_link", "publish_odom_tf": True,
-                  "odom_wait_scans": 50, "stamp_offset_s": 2.0, "mount_from_tf": False, "mount_wait_s": 5.0,
-                  "sensor_qos": "reliable"},
+    "bag_replay": {
+        "bag": "",
+        "rate": "max",
+        "max_in_flight": 100,
+        "scan_topic": "/scan",
+        "image_topic": "",
+        "max_pairs_in_flight": 1,
+        "clock_period_s": 0.01,
+        "wait_for": ["predictor", "correlator", "mapper"],
+        "restamp": "",
+        "start_delay_s": 0.0,
+    },
+    "predictor": {
+        "map_frame": "map",
+        "odometry_source": "odom",
+        "odom_sync": "interpolate",
+        "time_gap_s": 60.0,
+        "expected_observers": 0,
+        "fog_format": "none",
+        "odom_frame": "odom",
+        "base_frame": "base_link",
+        "publish_odom_tf": True,
+        "odom_wait_scans": 50,
+        "stamp_offset_s": 2.0,
+        "mount_from_tf": False,
+        "mount_wait_s": 5.0,
+        "sensor_qos": "reliable",
+    },
     "correlator": {"map_frame": "map", "expected_observers": 0, "mode": "slam", "mount_from_tf": False},
-    "mapper": {**_FRAMES, "occupied_thresh": 0.65, "free_thresh": 0.25, "map_publish_period_s": 1.0,
-               "publish_sensor_tf": True, "mode": "slam", "map_file": "", "mount_from_tf": False},
-    "texture": {"map_frame": "map", "base_frame": "base_link", "publish_period_s": 1.0, "calibration_dir": "",
-                "camera_extrinsic": [0.0] * 12, "queue_depth": 1, "max_pending_pairs": 10, "final_idle_s": 2.0,
-                "worker_nice": 10, "pose_buffer_size": 3000, "left_topic": "/stereo/left/image_raw",
-                "right_topic": "/stereo/right/image_raw", "left_info_topic": "/stereo/left/camera_info",
-                "right_info_topic": "/stereo/right/camera_info", "use_map_metadata": True,
-                "expected_observers": 0, "camera": "stereo", "rgb_topic": "/kinect/rgb/image_raw",
-                "depth_topic": "/kinect/depth/image_raw", "rgb_info_topic": "/kinect/rgb/camera_info",
-                "depth_info_topic": "/kinect/depth/camera_info", "depth_pair_tol_s": 0.05,
-                "floor_height_m": 0.0},
+    "mapper": {
+        **_FRAMES,
+        "occupied_thresh": 0.65,
+        "free_thresh": 0.25,
+        "map_publish_period_s": 1.0,
+        "publish_sensor_tf": True,
+        "mode": "slam",
+        "map_file": "",
+        "mount_from_tf": False,
+    },
+    "texture": {
+        "map_frame": "map",
+        "base_frame": "base_link",
+        "publish_period_s": 1.0,
+        "calibration_dir": "",
+        "camera_extrinsic": [0.0] * 12,
+        "queue_depth": 1,
+        "max_pending_pairs": 10,
+        "final_idle_s": 2.0,
+        "worker_nice": 10,
+        "pose_buffer_size": 3000,
+        "left_topic": "/stereo/left/image_raw",
+        "right_topic": "/stereo/right/image_raw",
+        "left_info_topic": "/stereo/left/camera_info",
+        "right_info_topic": "/stereo/right/camera_info",
+        "use_map_metadata": True,
+        "expected_observers": 0,
+        "camera": "stereo",
+        "rgb_topic": "/kinect/rgb/image_raw",
+        "depth_topic": "/kinect/depth/image_raw",
+        "rgb_info_topic": "/kinect/rgb/camera_info",
+        "depth_info_topic": "/kinect/depth/camera_info",
+        "depth_pair_tol_s": 0.05,
+        "floor_height_m": 0.0,
+    },
 }
 
 #: Keys of a parameter file's '/**' section that no node declares: `pf-slam run` reads them.
@@ -55,11 +100,21 @@ def section_class(section: str) -> type:
     """The config dataclass of a parameter section ('filter' -> FilterConfig)."""
     if section == "texture":
         from ..core.texture import TextureConfig
+
         return TextureConfig
     from ..core import config as cfg
-    return {"filter": cfg.FilterConfig, "motion": cfg.OdometryMotionConfig, "diff_drive": cfg.DiffDriveConfig,
-            "wheels": cfg.WheelsConfig, "grid": cfg.GridConfig, "correlation": cfg.CorrelationConfig, "resample": cfg.ResampleConfig,
-            "laser": cfg.LaserConfig, "localization": cfg.LocalizationConfig}[section]
+
+    return {
+        "filter": cfg.FilterConfig,
+        "motion": cfg.OdometryMotionConfig,
+        "diff_drive": cfg.DiffDriveConfig,
+        "wheels": cfg.WheelsConfig,
+        "grid": cfg.GridConfig,
+        "correlation": cfg.CorrelationConfig,
+        "resample": cfg.ResampleConfig,
+        "laser": cfg.LaserConfig,
+        "localization": cfg.LocalizationConfig,
+    }[section]
 
 
 def _field_default(f: dataclasses.Field) -> Any:
@@ -98,6 +153,7 @@ def nearest(name: str, known) -> str | None:
         whole = difflib.SequenceMatcher(None, name, k).ratio()
         part = difflib.SequenceMatcher(None, leaf, k.rsplit(".", 1)[-1]).ratio()
         return max(whole, 0.95 * part)
+
     best = max(known, key=score)
     return best if score(best) >= 0.5 else None
 
@@ -149,8 +205,10 @@ def check_values(node: str, params: dict[str, Any]) -> tuple[str, str] | None:
         except (ValueError, TypeError) as e:
             msg = str(e)
             leaves = [(n, n.rsplit(".", 1)[1]) for n in given]
-            culprit = next((n for n, leaf in leaves if msg.startswith(leaf + " ")),
-                           next((n for n, leaf in leaves if re.search(rf"\b{leaf}\b", msg)), f"{section}.*"))
+            culprit = next(
+                (n for n, leaf in leaves if msg.startswith(leaf + " ")),
+                next((n for n, leaf in leaves if re.search(rf"\b{leaf}\b", msg)), f"{section}.*"),
+            )
             return culprit, msg
     for name, d in NODE_PLAIN[node].items():
         if name in params and d is not None:

@@ -25,6 +25,7 @@ empty map from the next corrected scan on, at the filter's pose then; the trajec
 dropped). A reset reaches the correlator in order on pf_slam/grid (a patch with resolution 0 just
 before the new map's first patch), so it drops its likelihood field at the same scan.
 """
+
 from __future__ import annotations
 
 from collections import deque
@@ -32,19 +33,28 @@ from collections import deque
 import numpy as np
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import MapMetaData, OccupancyGrid, Path
-from pf_slam_interfaces.msg import ParticleArray, ReplayStatus
-from pf_slam_interfaces.srv import SaveMap
 from rclpy.node import Node
 from sensor_msgs.msg import LaserScan
 from std_srvs.srv import SetBool, Trigger
 from tf2_msgs.msg import TFMessage
 
+from pf_slam_interfaces.msg import ParticleArray, ReplayStatus
+from pf_slam_interfaces.srv import SaveMap
+
 from ..core.geometry import compose, matrix_to_quat, relative_pose
 from ..core.stages import MappingStage
 from ..io.mapfile import read_map, trinary
 from ..ros import cdr, convert, qos, topics
-from .common import (ScanQueue, announce_when_matched, declare_config, mount_of, param, run_node, scan_fields,
-                     status_publisher)
+from .common import (
+    ScanQueue,
+    announce_when_matched,
+    declare_config,
+    mount_of,
+    param,
+    run_node,
+    scan_fields,
+    status_publisher,
+)
 
 
 class PoseLog:
@@ -66,20 +76,21 @@ class PoseLog:
         self._n += 1
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray]:
-        return self._t[:self._n].copy(), self._p[:self._n].copy()
+        return self._t[: self._n].copy(), self._p[: self._n].copy()
 
     def drop_before(self, stamp_ns: int) -> None:
-        keep = self._t[:self._n] >= stamp_ns
+        keep = self._t[: self._n] >= stamp_ns
         k = int(keep.sum())
-        self._t[:k], self._p[:k] = self._t[:self._n][keep], self._p[:self._n][keep]
+        self._t[:k], self._p[:k] = self._t[: self._n][keep], self._p[: self._n][keep]
         self._n = k
 
 
 class Mapper(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("mapper", **kwargs)
-        self.stage = MappingStage(declare_config(self, "filter"), declare_config(self, "grid"),
-                                  declare_config(self, "laser"))
+        self.stage = MappingStage(
+            declare_config(self, "filter"), declare_config(self, "grid"), declare_config(self, "laser")
+        )
         self.map_frame = param(self, "map_frame", "map")
         self.odom_frame = param(self, "odom_frame", "odom")
         self.base_frame = param(self, "base_frame", "base_link")
@@ -110,8 +121,11 @@ class Mapper(Node):
         self.pub_meta = self.create_publisher(MapMetaData, topics.MAP_METADATA, qos.latched())
         self.pub_path = self.create_publisher(Path, topics.PATH, qos.outputs(10))
         self.pub_tf = self.create_publisher(TFMessage, topics.TF, qos.outputs())
-        self.pub_tf_static = (self.create_publisher(TFMessage, topics.TF_STATIC, qos.latched())
-                              if param(self, "publish_sensor_tf", True) else None)
+        self.pub_tf_static = (
+            self.create_publisher(TFMessage, topics.TF_STATIC, qos.latched())
+            if param(self, "publish_sensor_tf", True)
+            else None
+        )
         announce_when_matched(self, [(self.pub_grid, 1)])  # the correlator
         self.create_subscription(LaserScan, topics.SCAN_CORRECTED, self._on_scan, qos.pipeline(), raw=True)
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
@@ -127,16 +141,19 @@ class Mapper(Node):
         self.create_service(SaveMap, topics.SAVE_MAP, self._srv_save_map)
         self.create_service(SetBool, topics.PAUSE_MAPPING, self._srv_pause)
         self.create_service(Trigger, topics.RESET, self._srv_reset)
-        status_publisher(self, lambda: {"faults": {"scans_lost_mapper": self.scans.lost,
-                                                   "map_beyond_bound": self._beyond_bound()}})
+        status_publisher(
+            self, lambda: {"faults": {"scans_lost_mapper": self.scans.lost, "map_beyond_bound": self._beyond_bound()}}
+        )
         self._warned_bound = False
         self.mount_ready = not param(self, "mount_from_tf", False)  # else: wait for the predictor's decision
         if not self.mount_ready:
             from .mount_tf import receive_mount
+
             receive_mount(self, self._on_mount)
 
     def _on_mount(self, decision: dict) -> None:
         from .mount_tf import apply_to_stage
+
         if not self.mount_ready:
             apply_to_stage(self.stage, decision["params"])
             if decision["source"] != "parameters":
@@ -158,6 +175,7 @@ class Mapper(Node):
     def _srv_save_map(self, req: SaveMap.Request, res: SaveMap.Response) -> SaveMap.Response:
         from ..io.mapfile import write_map
         from ..io.trajectory import write_tum
+
         res.success = False
         if not req.directory:
             res.message = "save_map: 'directory' is empty"
@@ -166,12 +184,14 @@ class Mapper(Node):
         else:
             import os
             from pathlib import Path
+
             out = Path(os.path.expanduser(req.directory)).resolve()
             try:
                 out.mkdir(parents=True, exist_ok=True)
                 occ, resolution, origin = self.stage.map_occupancy()
-                yaml_path = write_map(out, occ, resolution, origin, occupied_thresh=self.thresholds[0],
-                                      free_thresh=self.thresholds[1])
+                yaml_path = write_map(
+                    out, occ, resolution, origin, occupied_thresh=self.thresholds[0], free_thresh=self.thresholds[1]
+                )
                 tum = out / "trajectory.tum"
                 stamps, poses = self.trajectory.arrays()
                 write_tum(tum, stamps / 1e9, poses)
@@ -180,8 +200,10 @@ class Mapper(Node):
             else:
                 res.success = True
                 res.files = [str(yaml_path.with_suffix(".pgm")), str(yaml_path), str(tum)]
-                res.message = (f"map {occ.shape[1]} x {occ.shape[0]} cells ({resolution} m), "
-                               f"{len(self.trajectory)} poses saved in {out}")
+                res.message = (
+                    f"map {occ.shape[1]} x {occ.shape[0]} cells ({resolution} m), "
+                    f"{len(self.trajectory)} poses saved in {out}"
+                )
         if res.success:
             self.get_logger().info(res.message)
         else:
@@ -193,8 +215,9 @@ class Mapper(Node):
         if was and not self.paused and not self.stage.ready and self.integrated:
             self.reset_pending = True  # paused since before the first map: start it as after a reset
         res.success = True
-        res.message = ("mapping paused: the map is frozen, the filter localises against it" if self.paused
-                       else "mapping resumed") + ("" if was != self.paused else " (no change)")
+        res.message = (
+            "mapping paused: the map is frozen, the filter localises against it" if self.paused else "mapping resumed"
+        ) + ("" if was != self.paused else " (no change)")
         self.get_logger().info(res.message)
         return res
 
@@ -240,8 +263,10 @@ class Mapper(Node):
                 scan = self.scans.take(self.integrated, stamp)
                 self.integrated += 1
                 if scan is None:
-                    self.get_logger().warn(f"scan {pa.scan_index} was lost on the way here (a replay faster "
-                                           "than the graph): not mapped", throttle_duration_sec=5.0)
+                    self.get_logger().warn(
+                        f"scan {pa.scan_index} was lost on the way here (a replay faster than the graph): not mapped",
+                        throttle_duration_sec=5.0,
+                    )
                 elif self.pub_tf_static is not None:
                     self._publish_sensor_tf(scan.header.frame_id, stamp)
                 if not self.localize:
@@ -249,15 +274,21 @@ class Mapper(Node):
                         self._reset_map(stamp)
                     if self.paused:  # the map is frozen: an empty patch keeps the correlator in step
                         g = self.stage.grid
-                        self.pub_grid.publish(convert.grid_to_msg(
-                            np.zeros((0, 0), np.int8),
-                            g.resolution if g is not None else self.stage.grid_cfg.resolution_m,
-                            g.origin if g is not None else (0.0, 0.0), stamp, self.map_frame))
+                        self.pub_grid.publish(
+                            convert.grid_to_msg(
+                                np.zeros((0, 0), np.int8),
+                                g.resolution if g is not None else self.stage.grid_cfg.resolution_m,
+                                g.origin if g is not None else (0.0, 0.0),
+                                stamp,
+                                self.map_frame,
+                            )
+                        )
                     else:
                         self._integrate(pa, pose, scan, stamp)
             map_to_odom = compose(pose, relative_pose(np.asarray(pa.odom_pose), np.zeros(3)))
-            self.pub_tf.publish(TFMessage(transforms=[
-                convert.transform(self.map_frame, self.odom_frame, map_to_odom, stamp)]))
+            self.pub_tf.publish(
+                TFMessage(transforms=[convert.transform(self.map_frame, self.odom_frame, map_to_odom, stamp)])
+            )
             self.path.append(convert.pose_stamped(pose, stamp, self.map_frame))
             self.last_index = pa.scan_index
             self.last_stamp = stamp
@@ -272,9 +303,11 @@ class Mapper(Node):
             self.get_logger().warn(
                 f"scan {pa.scan_index} reaches beyond what grid.max_cells ({g.cfg.max_cells}) lets the "
                 f"map grow to ({g.height} x {g.width} cells): those cells are not mapped (counted: "
-                "faults map_beyond_bound)")
-        self.pub_grid.publish(convert.grid_to_msg(patch.occupancy, patch.resolution,
-                                                  patch.origin, stamp, self.map_frame))
+                "faults map_beyond_bound)"
+            )
+        self.pub_grid.publish(
+            convert.grid_to_msg(patch.occupancy, patch.resolution, patch.origin, stamp, self.map_frame)
+        )
 
     def _publish_sensor_tf(self, frame: str, stamp: int) -> None:
         """base_frame -> the scan's frame (latched, once): the laser mounting the SLAM uses."""
@@ -321,4 +354,5 @@ def main(args: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     import sys
+
     sys.exit(main())

@@ -9,12 +9,14 @@ pf_slam/lidar_mount (latched JSON: source, the mount parameters, a description, 
 correlator and the mapper hold their first scan until that message is there and put its
 parameters into their stages, so all three use one mount, decided once.
 """
+
 from __future__ import annotations
 
 import dataclasses
 import json
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from ..ros import qos, topics
 
@@ -25,6 +27,7 @@ class MountDecider:
     def __init__(self, node, base_frame: str, odom_frame: str, wait_s: float, on_decided: Callable[[], None]) -> None:
         from std_msgs.msg import String
         from tf2_msgs.msg import TFMessage
+
         self.node, self.base, self.odom_frame, self.wait_s = node, base_frame, odom_frame, wait_s
         self.on_decided = on_decided
         self.tree: dict = {}
@@ -33,8 +36,10 @@ class MountDecider:
         self.t_first: float | None = None
         self.decided: dict[str, Any] | None = None
         self.pub = node.create_publisher(String, topics.LIDAR_MOUNT, qos.latched())
-        self._subs = [node.create_subscription(TFMessage, topics.TF_STATIC, self._on_tf("/tf_static"), qos.latched(100)),
-                      node.create_subscription(TFMessage, topics.TF, self._on_tf("/tf"), qos.outputs(1000))]
+        self._subs = [
+            node.create_subscription(TFMessage, topics.TF_STATIC, self._on_tf("/tf_static"), qos.latched(100)),
+            node.create_subscription(TFMessage, topics.TF, self._on_tf("/tf"), qos.outputs(1000)),
+        ]
         self._timer = node.create_timer(0.1, self.try_decide)
 
     def _on_tf(self, topic: str):
@@ -43,6 +48,7 @@ class MountDecider:
         def cb(msg) -> None:
             for tr in msg.transforms:
                 add_transform(self.tree, tr, self.warnings, topic)
+
         return cb
 
     def first_scan(self, frame_id: str) -> None:
@@ -56,16 +62,20 @@ class MountDecider:
         from std_msgs.msg import String
 
         from ..runner.mount import LidarMount, mount_in_tree
-        m = mount_in_tree(LidarMount("parameters", self.base, self.frame), dict(self.tree), "scan",
-                          self.odom_frame, source="/tf")
+
+        m = mount_in_tree(
+            LidarMount("parameters", self.base, self.frame), dict(self.tree), "scan", self.odom_frame, source="/tf"
+        )
         if m.source == "parameters" and time.monotonic() - self.t_first < self.wait_s:
             return  # the transform may still come
         if m.source != "parameters":
             m.source = "/tf_static + /tf"
             text = m.describe()
         else:
-            text = (f"no transform to the scan's frame {self.frame!r} on /tf_static or /tf within {self.wait_s:g} s: "
-                    "the parameters' mount is used")
+            text = (
+                f"no transform to the scan's frame {self.frame!r} on /tf_static or /tf within {self.wait_s:g} s: "
+                "the parameters' mount is used"
+            )
         self.decided = {"source": m.source, "params": m.params(), "text": text, "warnings": self.warnings + m.warnings}
         self.pub.publish(String(data=json.dumps(self.decided)))
         self.node.get_logger().info(f"lidar mount: {text}")
@@ -78,6 +88,7 @@ class MountDecider:
 def receive_mount(node, on_mount: Callable[[dict], None]) -> None:
     """The correlator's and the mapper's side: `on_mount(decision)` when pf_slam/lidar_mount comes."""
     from std_msgs.msg import String
+
     node.create_subscription(String, topics.LIDAR_MOUNT, lambda msg: on_mount(json.loads(msg.data)), qos.latched())
 
 
@@ -87,4 +98,6 @@ def apply_to_stage(stage, params: dict[str, Any]) -> None:
     if fields:
         stage.filter_cfg = dataclasses.replace(stage.filter_cfg, **fields)
     if "laser.extrinsic" in params:
-        stage.laser_cfg = dataclasses.replace(stage.laser_cfg, extrinsic=tuple(float(v) for v in params["laser.extrinsic"]))
+        stage.laser_cfg = dataclasses.replace(
+            stage.laser_cfg, extrinsic=tuple(float(v) for v in params["laser.extrinsic"])
+        )

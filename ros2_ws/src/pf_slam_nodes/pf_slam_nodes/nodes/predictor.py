@@ -40,6 +40,7 @@ counts) are core/scheduler.py's PredictorScheduler, shared with the ROS-free loo
 (core/slam.py ParticleFilterSlam.run_stream); this node parses the messages, hands them to it and
 publishes what it decides, at once and in its order.
 """
+
 from __future__ import annotations
 
 from collections import deque
@@ -47,11 +48,12 @@ from collections import deque
 import numpy as np
 from geometry_msgs.msg import PoseStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
-from pf_slam_interfaces.msg import FogBatch, ParticleArray, ReplayStatus
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from sensor_msgs.msg import Imu, JointState, LaserScan
 from tf2_msgs.msg import TFMessage
+
+from pf_slam_interfaces.msg import FogBatch, ParticleArray, ReplayStatus
 
 from ..core import scheduler as sch
 from ..core.geometry import quat_to_yaw
@@ -75,8 +77,11 @@ class Predictor(Node):
         stamp_offset_s = param(self, "stamp_offset_s", 2.0)  # 0: off
         time_gap_s = param(self, "time_gap_s", 60.0)
         self._fault_loggers: dict = {}  # one logger per fault kind: each throttled on its own
-        self.odom_topic = (topics.TF if source == "tf"
-                           else self.resolve_topic_name(topics.ODOM if source == "odom" else topics.ENCODERS))
+        self.odom_topic = (
+            topics.TF
+            if source == "tf"
+            else self.resolve_topic_name(topics.ODOM if source == "odom" else topics.ENCODERS)
+        )
         self.scan_topic = self.resolve_topic_name(topics.SCAN)
         self.pub = self.create_publisher(ParticleArray, topics.PARTICLES_PREDICTED, qos.pipeline())
         self.pub_pose = self.create_publisher(PoseStamped, topics.POSE, qos.pipeline())
@@ -88,19 +93,30 @@ class Predictor(Node):
         def sensor_sub(msg_type, topic, callback, depth, raw=False):
             """A sensor input with sensor_qos; a publisher whose QoS cannot match is named once."""
             profile = qos.sensor(depth, sensor_qos)
-            events = SubscriptionEventCallbacks(incompatible_qos=lambda _e: self.get_logger().error(
-                f"{self.resolve_topic_name(topic)}: a publisher's QoS is incompatible with this "
-                f"subscription ({sensor_qos}); nothing arrives from it. A driver that publishes with the "
-                "sensor-data QoS needs sensor_qos: best_effort (pf-slam live --sensor-qos best_effort, "
-                "launch sensor_qos:=best_effort)", once=True))
+            events = SubscriptionEventCallbacks(
+                incompatible_qos=lambda _e: self.get_logger().error(
+                    f"{self.resolve_topic_name(topic)}: a publisher's QoS is incompatible with this "
+                    f"subscription ({sensor_qos}); nothing arrives from it. A driver that publishes with the "
+                    "sensor-data QoS needs sensor_qos: best_effort (pf-slam live --sensor-qos best_effort, "
+                    "launch sensor_qos:=best_effort)",
+                    once=True,
+                )
+            )
             return self.create_subscription(msg_type, topic, callback, profile, raw=raw, event_callbacks=events)
 
         sub_scan = sensor_sub(LaserScan, topics.SCAN, self._on_scan, 1000, raw=True)
         # the correlator (+ the mapper for the scans); bag_replay (paces on pose), the mapper (the
         # trajectory save_map writes) + observers
         # that must see every pose; the scans' source (the replay starts once this is matched)
-        announce_when_matched(self, [(self.pub, 1), (self.pub_scan, 2),
-                                     (self.pub_pose, 2 + param(self, "expected_observers", 0)), (sub_scan, 1)])
+        announce_when_matched(
+            self,
+            [
+                (self.pub, 1),
+                (self.pub_scan, 2),
+                (self.pub_pose, 2 + param(self, "expected_observers", 0)),
+                (sub_scan, 1),
+            ],
+        )
         self.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
         self.create_subscription(ReplayStatus, topics.REPLAY_STALL, self._on_stall, qos.pipeline())
@@ -134,13 +150,23 @@ class Predictor(Node):
             # the graph's own /tf (the mapper's map -> odom, this node's odom -> base when it publishes
             # it) is not the bag's: not counted against the replay's /tf count
             self._own_tf = {(frame("map_frame"), frame("odom_frame"))} | (
-                {(frame("odom_frame"), frame("base_frame"))} if self.pub_tf is not None else set())
+                {(frame("odom_frame"), frame("base_frame"))} if self.pub_tf is not None else set()
+            )
             self.create_subscription(TFMessage, topics.TF, self._on_tf_mount, qos.pipeline(10000), raw=True)
         # every decision is the scheduler's; its actions are published as they are decided
-        self.sched = sch.PredictorScheduler(filter_cfg, motion_cfg, "odom" if source == "tf" else source, odom_sync, wheels_cfg,
-                                            gyro=fog != "none", odom_wait_scans=odom_wait_scans,
-                                            stamp_offset_s=stamp_offset_s, time_gap_s=time_gap_s,
-                                            emit=self._act, laser_cfg=laser_cfg)
+        self.sched = sch.PredictorScheduler(
+            filter_cfg,
+            motion_cfg,
+            "odom" if source == "tf" else source,
+            odom_sync,
+            wheels_cfg,
+            gyro=fog != "none",
+            odom_wait_scans=odom_wait_scans,
+            stamp_offset_s=stamp_offset_s,
+            time_gap_s=time_gap_s,
+            emit=self._act,
+            laser_cfg=laser_cfg,
+        )
         self.stage = self.sched.stage
         # "final" once the last scan of the bag is posed: the run's summary waits for it
         self._publish_status = status_publisher(self, self.sched.status)
@@ -168,10 +194,14 @@ class Predictor(Node):
 
     def _on_foreign_tf(self, msg: TFMessage) -> None:
         for t in msg.transforms:
-            if (t.header.frame_id.lstrip("/"), t.child_frame_id.lstrip("/")) == (self.odom_frame, self.base_frame) \
-                    and convert.stamp_to_ns(t.header.stamp) not in self._own_tf_stamps:
-                self.get_logger().warn(f"another node publishes {self.odom_frame} -> {self.base_frame} on /tf: "
-                                       "this node stops publishing it (publish_odom_tf)")
+            if (t.header.frame_id.lstrip("/"), t.child_frame_id.lstrip("/")) == (
+                self.odom_frame,
+                self.base_frame,
+            ) and convert.stamp_to_ns(t.header.stamp) not in self._own_tf_stamps:
+                self.get_logger().warn(
+                    f"another node publishes {self.odom_frame} -> {self.base_frame} on /tf: "
+                    "this node stops publishing it (publish_odom_tf)"
+                )
                 self.destroy_publisher(self.pub_tf)
                 self.destroy_subscription(self._tf_watch)
                 self.destroy_timer(self._tf_check)
@@ -188,13 +218,31 @@ class Predictor(Node):
                 self.pub_tf.publish(self.odom_tf_cdr.pack(a.odom, a.stamp))
         elif isinstance(a, sch.SendCorrection):
             self.pub_scan.publish(a.payload)
-            self.pub.publish(convert.particles_to_msg(
-                a.particles, a.log_weights, stamp_ns=a.stamp, frame_id=self.map_frame,
-                scan_index=a.index, update=True, odom_pose=a.odom, mount=a.mount))
+            self.pub.publish(
+                convert.particles_to_msg(
+                    a.particles,
+                    a.log_weights,
+                    stamp_ns=a.stamp,
+                    frame_id=self.map_frame,
+                    scan_index=a.index,
+                    update=True,
+                    odom_pose=a.odom,
+                    mount=a.mount,
+                )
+            )
         elif isinstance(a, sch.SendEnd):
-            self.pub.publish(convert.particles_to_msg(
-                np.zeros((0, 3)), np.zeros(0), stamp_ns=a.stamp, frame_id=self.map_frame,
-                scan_index=a.index, update=False, odom_pose=a.odom, pending_delta=a.delta))
+            self.pub.publish(
+                convert.particles_to_msg(
+                    np.zeros((0, 3)),
+                    np.zeros(0),
+                    stamp_ns=a.stamp,
+                    frame_id=self.map_frame,
+                    scan_index=a.index,
+                    update=False,
+                    odom_pose=a.odom,
+                    pending_delta=a.delta,
+                )
+            )
         elif isinstance(a, sch.PublishStatus):
             self._publish_status()
         elif isinstance(a, sch.Fault):
@@ -223,14 +271,16 @@ class Predictor(Node):
         for t in msg.transforms:
             if (t.header.frame_id.lstrip("/"), t.child_frame_id.lstrip("/")) == (self.odom_frame, self.base_frame):
                 q, p = t.transform.rotation, t.transform.translation
-                self.sched.add_odometry(convert.stamp_to_ns(t.header.stamp),
-                                        np.array([p.x, p.y, float(quat_to_yaw(q.x, q.y, q.z, q.w))]))
+                self.sched.add_odometry(
+                    convert.stamp_to_ns(t.header.stamp), np.array([p.x, p.y, float(quat_to_yaw(q.x, q.y, q.z, q.w))])
+                )
 
     def _on_encoders(self, raw: bytes) -> None:
         stamp, position = self._parse(cdr.joint_state_positions, raw, "encoders")
         if position is not None and len(position) < 2:
-            self.get_logger().warn("encoders: JointState with fewer than 2 positions ignored",
-                                   throttle_duration_sec=5.0)
+            self.get_logger().warn(
+                "encoders: JointState with fewer than 2 positions ignored", throttle_duration_sec=5.0
+            )
             position = None
         self.sched.add_encoders(stamp, position)
 
@@ -279,6 +329,7 @@ class Predictor(Node):
         wait_s = param(self, "mount_wait_s", 5.0)
         if param(self, "mount_from_tf", False):
             from .mount_tf import MountDecider
+
             self.mount = MountDecider(self, self.base_frame, self.odom_frame, wait_s, self._release_held)
 
     def _release_held(self) -> None:
@@ -291,6 +342,7 @@ class Predictor(Node):
             self._held.append(raw)
             if self.mount.frame is None:
                 from rclpy.serialization import deserialize_message
+
                 try:
                     frame = deserialize_message(raw, LaserScan).header.frame_id
                 except Exception:  # unreadable: the next scan names the frame
@@ -317,20 +369,32 @@ class Predictor(Node):
     def _on_updated(self, msg: ParticleArray) -> None:
         if msg.update and msg.scan_index == self.sched.waiting_for:
             particles, log_weights = convert.msg_to_particles(msg)
-            self.sched.corrected(msg.scan_index, particles, log_weights, np.array(msg.pose, dtype=np.float64),
-                                 convert.stamp_to_ns(msg.header.stamp))
+            self.sched.corrected(
+                msg.scan_index,
+                particles,
+                log_weights,
+                np.array(msg.pose, dtype=np.float64),
+                convert.stamp_to_ns(msg.header.stamp),
+            )
 
     def _on_replay_status(self, msg: ReplayStatus) -> None:
         counts = dict(zip(msg.topics, msg.counts))
-        self.sched.end_of_stream(scans=int(counts.get(self.scan_topic, 0)),
-                                 odometry=int(counts.get(self.odom_topic, 0)),
-                                 gyro=int(counts.get(self.fog_topic, 0)), mount=int(counts.get(topics.TF, 0)))
+        self.sched.end_of_stream(
+            scans=int(counts.get(self.scan_topic, 0)),
+            odometry=int(counts.get(self.odom_topic, 0)),
+            gyro=int(counts.get(self.fog_topic, 0)),
+            mount=int(counts.get(topics.TF, 0)),
+        )
 
     def _on_stall(self, msg: ReplayStatus) -> None:
         st = dict(zip(msg.topics, msg.counts))
-        self.sched.stall(pose=st.get(topics.POSE), scans=st.get(self.scan_topic, 0),
-                         odometry=st.get(self.odom_topic, 0), gyro=st.get(self.fog_topic, 0),
-                         mount=st.get(topics.TF, 0))
+        self.sched.stall(
+            pose=st.get(topics.POSE),
+            scans=st.get(self.scan_topic, 0),
+            odometry=st.get(self.odom_topic, 0),
+            gyro=st.get(self.fog_topic, 0),
+            mount=st.get(topics.TF, 0),
+        )
 
 
 def main(args: list[str] | None = None) -> int:
@@ -339,4 +403,5 @@ def main(args: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     import sys
+
     sys.exit(main())

@@ -62,6 +62,7 @@ transform in the RGB frame is ``P_rgb = R P_depth + T``), and the kinematic floo
 Parameters: ``texture.<field>`` for every :class:`pf_slam_nodes.core.texture.TextureConfig`
 field, plus the ones declared in ``__init__``.
 """
+
 from __future__ import annotations
 
 import array
@@ -71,21 +72,28 @@ import os
 import threading
 import time
 from collections import deque
-from typing import Optional
 
 import numpy as np
+from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import MapMetaData, OccupancyGrid
-from pf_slam_interfaces.msg import ReplayStatus
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import String, UInt32MultiArray
-from geometry_msgs.msg import PoseStamped
 from tf2_msgs.msg import TFMessage
+
+from pf_slam_interfaces.msg import ReplayStatus
 
 from ..core.geometry import quat_to_matrix, quat_to_yaw
 from ..core.mount import MountBuffer
-from ..core.texture import (DepthCamera, DepthTexturer, StereoRig, StereoTexturer, TextureConfig, TextureMap,
-                            interpolate_poses)
+from ..core.texture import (
+    DepthCamera,
+    DepthTexturer,
+    StereoRig,
+    StereoTexturer,
+    TextureConfig,
+    TextureMap,
+    interpolate_poses,
+)
 from ..io.calib import read_stereo_rig
 from ..ros import convert, qos, topics
 from .common import announce_when_matched, declare_config, param, run_node
@@ -126,9 +134,9 @@ class _Pair:
     stamp_ns: int
     left: Image
     right: Image
-    pose: Optional[np.ndarray] = None
-    mount: Optional[tuple[np.ndarray, np.ndarray]] = None  # depth mode: the RGB camera in the base frame
-    rgb_from_depth: Optional[tuple[np.ndarray, np.ndarray]] = None  # depth mode: at their two stamps
+    pose: np.ndarray | None = None
+    mount: tuple[np.ndarray, np.ndarray] | None = None  # depth mode: the RGB camera in the base frame
+    rgb_from_depth: tuple[np.ndarray, np.ndarray] | None = None  # depth mode: at their two stamps
 
 
 class TextureNode(Node):
@@ -161,7 +169,9 @@ class TextureNode(Node):
         right_info = param(self, "right_info_topic", "/stereo/right/camera_info")
         self.mode = param(self, "camera", "stereo")
         if self.mode not in ("stereo", "depth"):
-            raise ValueError(f"node {self.get_name()}: parameter 'camera' must be 'stereo' or 'depth', got {self.mode!r}")
+            raise ValueError(
+                f"node {self.get_name()}: parameter 'camera' must be 'stereo' or 'depth', got {self.mode!r}"
+            )
         rgb_topic = param(self, "rgb_topic", "/kinect/rgb/image_raw")
         depth_topic = param(self, "depth_topic", "/kinect/depth/image_raw")
         rgb_info = param(self, "rgb_info_topic", "/kinect/rgb/camera_info")
@@ -169,29 +179,32 @@ class TextureNode(Node):
         self.pair_tol_ns = int(param(self, "depth_pair_tol_s", 0.05) * 1e9)
         self.floor_height_m = param(self, "floor_height_m", 0.0)
         if not period > 0 or self.queue_depth < 1 or self.max_pending_pairs < 1 or pose_buffer < 2:
-            raise ValueError(f"node {self.get_name()}: publish_period_s must be > 0, queue_depth "
-                             ">= 1, max_pending_pairs >= 1, pose_buffer_size >= 2")
+            raise ValueError(
+                f"node {self.get_name()}: publish_period_s must be > 0, queue_depth "
+                ">= 1, max_pending_pairs >= 1, pose_buffer_size >= 2"
+            )
         ext = [float(v) for v in ext]
         if len(ext) != 12:
-            raise ValueError(f"node {self.get_name()}: camera_extrinsic needs 12 numbers "
-                             f"(R row-major, T), got {len(ext)}")
-        self._extrinsic: Optional[tuple[np.ndarray, np.ndarray]] = None
+            raise ValueError(
+                f"node {self.get_name()}: camera_extrinsic needs 12 numbers (R row-major, T), got {len(ext)}"
+            )
+        self._extrinsic: tuple[np.ndarray, np.ndarray] | None = None
         if any(ext):
             self._extrinsic = (np.array(ext[:9]).reshape(3, 3), np.array(ext[9:]))
         self._infos: dict[str, CameraInfo] = {}
         self._tf: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self._static: dict[str, tuple[str, np.ndarray, np.ndarray]] = {}  # child -> (parent, R, t)
         self._dynamic: dict[str, tuple[str, MountBuffer]] = {}  # child -> (parent, samples) from /tf
-        self.camera: Optional[DepthCamera] = None
-        self.rig: Optional[StereoRig] = None
+        self.camera: DepthCamera | None = None
+        self.rig: StereoRig | None = None
         if self.calibration_dir:
             self.rig = read_stereo_rig(self.calibration_dir)
 
         self.lock = threading.Lock()
         self._cond = threading.Condition(self.lock)
         self.texmap = TextureMap.from_config(self.cfg)
-        self._texturer: Optional[StereoTexturer] = None
-        self._map_info: Optional[MapMetaData] = None
+        self._texturer: StereoTexturer | None = None
+        self._map_info: MapMetaData | None = None
         self._images: dict[str, dict[int, Image]] = {"left": {}, "right": {}}
         self._awaiting: deque[_Pair] = deque()
         self._ready: deque[_Pair] = deque()
@@ -231,20 +244,15 @@ class TextureNode(Node):
         else:
             self.create_subscription(Image, left_topic, lambda m: self._on_image("left", m), img_qos)
             self.create_subscription(Image, right_topic, lambda m: self._on_image("right", m), img_qos)
-            self.create_subscription(CameraInfo, left_info, lambda m: self._on_info("left", m),
-                                     qos.pipeline(10))
-            self.create_subscription(CameraInfo, right_info, lambda m: self._on_info("right", m),
-                                     qos.pipeline(10))
+            self.create_subscription(CameraInfo, left_info, lambda m: self._on_info("left", m), qos.pipeline(10))
+            self.create_subscription(CameraInfo, right_info, lambda m: self._on_info("right", m), qos.pipeline(10))
         self.create_subscription(TFMessage, topics.TF_STATIC, self._on_tf_static, qos.latched(10))
         self.create_subscription(PoseStamped, topics.POSE, self._on_pose, qos.pipeline())
         if param(self, "use_map_metadata", True):  # same geometry, without the cells
-            self.create_subscription(MapMetaData, topics.MAP_METADATA, self._on_map_info,
-                                     qos.latched())
+            self.create_subscription(MapMetaData, topics.MAP_METADATA, self._on_map_info, qos.latched())
         else:
-            self.create_subscription(OccupancyGrid, topics.MAP,
-                                     lambda m: self._on_map_info(m.info), qos.latched())
-        self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status,
-                                 qos.latched())
+            self.create_subscription(OccupancyGrid, topics.MAP, lambda m: self._on_map_info(m.info), qos.latched())
+        self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
         self.create_timer(period, self._on_timer)
         self._worker = threading.Thread(target=self._work, name="texture_worker", daemon=True)
         self._worker.start()
@@ -261,7 +269,10 @@ class TextureNode(Node):
             t, q = tr.transform.translation, tr.transform.rotation
             try:
                 self._static[tr.child_frame_id.lstrip("/")] = (
-                    tr.header.frame_id.lstrip("/"), quat_to_matrix(q.x, q.y, q.z, q.w), np.array([t.x, t.y, t.z]))
+                    tr.header.frame_id.lstrip("/"),
+                    quat_to_matrix(q.x, q.y, q.z, q.w),
+                    np.array([t.x, t.y, t.z]),
+                )
             except ValueError:
                 pass  # warned below when it is the camera's
             if tr.header.frame_id == self.base_frame:
@@ -269,8 +280,7 @@ class TextureNode(Node):
                 try:
                     rot = quat_to_matrix(q.x, q.y, q.z, q.w)
                 except ValueError as e:  # this mount stays unknown (or as it was)
-                    self.get_logger().warning(
-                        f"/tf_static: {tr.header.frame_id} -> {tr.child_frame_id} ignored: {e}")
+                    self.get_logger().warning(f"/tf_static: {tr.header.frame_id} -> {tr.child_frame_id} ignored: {e}")
                     continue
                 self._tf[tr.child_frame_id] = (rot, np.array([t.x, t.y, t.z]))
         self._ensure_rig()
@@ -289,7 +299,7 @@ class TextureNode(Node):
         if self._awaiting:
             self._release()
 
-    def _chain_at(self, frame: str, stamp: int) -> Optional[tuple[np.ndarray, np.ndarray]]:
+    def _chain_at(self, frame: str, stamp: int) -> tuple[np.ndarray, np.ndarray] | None:
         """`frame` in the base frame at `stamp` (static links and interpolated moving ones), or
         None while a link is missing."""
         rot, t, f = np.eye(3), np.zeros(3), frame
@@ -348,8 +358,13 @@ class TextureNode(Node):
         if link is None or link[0] != rgb.header.frame_id.lstrip("/"):
             return False  # P_rgb = R P_depth + T: /tf_static rgb frame -> depth frame
         try:
-            self.camera = DepthCamera(np.asarray(depth.k).reshape(3, 3), np.asarray(rgb.k).reshape(3, 3),
-                                      link[1], link[2], (int(rgb.width), int(rgb.height)))
+            self.camera = DepthCamera(
+                np.asarray(depth.k).reshape(3, 3),
+                np.asarray(rgb.k).reshape(3, 3),
+                link[1],
+                link[2],
+                (int(rgb.width), int(rgb.height)),
+            )
         except ValueError as e:
             self.last_error = str(e)
             self.get_logger().error(f"bad RGB-D calibration: {e}")
@@ -388,8 +403,7 @@ class TextureNode(Node):
         self._last_input = time.monotonic()
         o = msg.pose.orientation
         self._pose_t.append(convert.stamp_to_ns(msg.header.stamp))
-        self._pose_v.append((msg.pose.position.x, msg.pose.position.y,
-                             float(quat_to_yaw(o.x, o.y, o.z, o.w))))
+        self._pose_v.append((msg.pose.position.x, msg.pose.position.y, float(quat_to_yaw(o.x, o.y, o.z, o.w))))
         if self._awaiting:
             self._release()
 
@@ -408,8 +422,15 @@ class TextureNode(Node):
             return False
 
         def info(m: CameraInfo) -> dict:
-            return {"width": m.width, "height": m.height, "k": np.asarray(m.k),
-                    "d": np.asarray(m.d), "r": np.asarray(m.r), "p": np.asarray(m.p)}
+            return {
+                "width": m.width,
+                "height": m.height,
+                "k": np.asarray(m.k),
+                "d": np.asarray(m.d),
+                "r": np.asarray(m.r),
+                "p": np.asarray(m.p),
+            }
+
         try:
             self.rig = StereoRig.from_camera_infos(info(left), info(right), *mount)
         except ValueError as e:
@@ -454,8 +475,9 @@ class TextureNode(Node):
                     # the depth camera at its stamp in the RGB camera at its own (the head moves between)
                     r_c, t_c = pair.mount
                     pair.rgb_from_depth = (r_c.T @ depth_mount[0], r_c.T @ (depth_mount[1] - t_c))
-                pair.pose = interpolate_poses(t[[i, j]], np.array([self._pose_v[i], self._pose_v[j]]),
-                                              np.array([pair.stamp_ns]))[0]
+                pair.pose = interpolate_poses(
+                    t[[i, j]], np.array([self._pose_v[i], self._pose_v[j]]), np.array([pair.stamp_ns])
+                )[0]
                 self._awaiting.popleft()
                 self._ready.append(pair)
                 while len(self._ready) > self.queue_depth:
@@ -476,8 +498,11 @@ class TextureNode(Node):
     def _work(self) -> None:
         if self.worker_nice > 0:  # Linux: per-thread niceness; the SLAM threads come first
             try:
-                os.setpriority(os.PRIO_PROCESS, threading.get_native_id(),
-                               min(os.getpriority(os.PRIO_PROCESS, 0) + self.worker_nice, 19))
+                os.setpriority(
+                    os.PRIO_PROCESS,
+                    threading.get_native_id(),
+                    min(os.getpriority(os.PRIO_PROCESS, 0) + self.worker_nice, 19),
+                )
             except (AttributeError, OSError):
                 pass
         while True:
@@ -558,26 +583,27 @@ class TextureNode(Node):
                 "frames_skipped": self.frames_skipped,
                 "frames_dropped": self.frames_dropped,
                 "frames_pending": len(self._awaiting) + len(self._ready) + int(self._busy),
-                "ms_per_frame": round(self.ms_total / self.frames_processed, 1)
-                if self.frames_processed else None,
+                "ms_per_frame": round(self.ms_total / self.frames_processed, 1) if self.frames_processed else None,
                 "ms_stages": {k: round(v / self.frames_processed, 1) for k, v in self.ms_stages.items()}
-                if self.frames_processed else {},
+                if self.frames_processed
+                else {},
                 "texture_cells": self.texmap.cell_count(),
-                "texture_memory_mb": round(self.texmap.memory_bytes / 2 ** 20, 1),
+                "texture_memory_mb": round(self.texmap.memory_bytes / 2**20, 1),
                 "final": self._final_sent,
                 "mode": self.mode,
                 **({"plane_fits": self.plane_fits} if self.mode == "depth" else {}),
             }
 
-    def render(self) -> Optional[tuple[np.ndarray, np.ndarray, MapMetaData]]:
+    def render(self) -> tuple[np.ndarray, np.ndarray, MapMetaData] | None:
         """``(rgb, covered, geometry)`` of the texture in the current /map geometry (or its own
         extent before a map arrived); None while nothing is coloured and no map is known."""
         with self.lock:
             self._dirty = False
             info = self._map_info
             if info is not None:
-                rgb, cov = self.texmap.render((info.origin.position.x, info.origin.position.y),
-                                              info.resolution, info.width, info.height)
+                rgb, cov = self.texmap.render(
+                    (info.origin.position.x, info.origin.position.y), info.resolution, info.width, info.height
+                )
                 meta = info
             else:
                 nat = self.texmap.render_native()
@@ -593,7 +619,7 @@ class TextureNode(Node):
         meta.map_load_time = convert.ns_to_stamp(stamp)
         return rgb, cov, meta
 
-    def publish_texture(self) -> Optional[Image]:
+    def publish_texture(self) -> Image | None:
         """Render and publish ``texture`` + ``texture_metadata`` + the status now (any thread).
         Returns the published image, or None when there is nothing to publish."""
         out = self.render()
@@ -616,8 +642,13 @@ class TextureNode(Node):
         now = time.monotonic()
         with self.lock:
             quiet = now - max(self._last_activity, self._last_input) > self.final_idle_s
-            finish = (self._replay_done and not self._final_sent and not self._ready
-                      and not self._busy and (not self._awaiting or quiet))
+            finish = (
+                self._replay_done
+                and not self._final_sent
+                and not self._ready
+                and not self._busy
+                and (not self._awaiting or quiet)
+            )
             if finish:  # end of the bag: pairs still without a pose never get one
                 self.frames_dropped += len(self._awaiting)
                 self._awaiting.clear()
@@ -654,4 +685,5 @@ def main(args: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     import sys
+
     sys.exit(main())

@@ -12,6 +12,7 @@ its bytes; a sequence a uint32 count and its elements. Every reader checks what 
 the buffer's length and raises ``ValueError`` naming the message type otherwise, and the unit
 tests compare each against rclpy's own (de)serialization.
 """
+
 from __future__ import annotations
 
 import struct
@@ -66,7 +67,7 @@ class CdrReader:
     def string(self) -> str:
         n = self.u32()
         self._need(n)
-        s = bytes(self.raw[self.pos:self.pos + n]).rstrip(b"\0").decode("utf-8", "replace")
+        s = bytes(self.raw[self.pos : self.pos + n]).rstrip(b"\0").decode("utf-8", "replace")
         self.pos += n
         return s
 
@@ -162,8 +163,10 @@ def _fog_batch_fast(raw: bytes):
             return None
         out.append(pos)
         pos += 8 * n
-    return (np.frombuffer(raw, dtype="<i8", count=n, offset=out[0]),
-            np.frombuffer(raw, dtype="<f8", count=n, offset=out[3]))
+    return (
+        np.frombuffer(raw, dtype="<i8", count=n, offset=out[0]),
+        np.frombuffer(raw, dtype="<f8", count=n, offset=out[3]),
+    )
 
 
 def fog_batch_yaw(raw: bytes) -> tuple[np.ndarray, np.ndarray]:
@@ -208,9 +211,14 @@ class PoseStampedWriter:
         self._pose = struct.Struct("<3d4d")
 
     def pack(self, pose, stamp_ns: int) -> bytes:
-        return b"".join((_LITTLE_ENDIAN, _STAMP.pack(stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000),
-                         self._frame, self._pose.pack(float(pose[0]), float(pose[1]), 0.0,
-                                                      *yaw_to_quat(float(pose[2])))))
+        return b"".join(
+            (
+                _LITTLE_ENDIAN,
+                _STAMP.pack(stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000),
+                self._frame,
+                self._pose.pack(float(pose[0]), float(pose[1]), 0.0, *yaw_to_quat(float(pose[2]))),
+            )
+        )
 
 
 class TransformWriter:
@@ -221,6 +229,7 @@ class TransformWriter:
         def string(s: str) -> bytes:
             b = s.encode() + b"\0"
             return struct.pack("<I", len(b)) + b
+
         head = string(parent)  # after the count (4) and the stamp (8)
         head += b"\0" * ((-(12 + len(head))) % 4) + string(child)
         self._frames = head + b"\0" * ((-(12 + len(head))) % 8)  # the doubles are 8-aligned
@@ -228,9 +237,15 @@ class TransformWriter:
         self._tf = struct.Struct("<3d4d")
 
     def pack(self, pose, stamp_ns: int) -> bytes:
-        return b"".join((_LITTLE_ENDIAN, self._count,
-                         _STAMP.pack(stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000), self._frames,
-                         self._tf.pack(float(pose[0]), float(pose[1]), 0.0, *yaw_to_quat(float(pose[2])))))
+        return b"".join(
+            (
+                _LITTLE_ENDIAN,
+                self._count,
+                _STAMP.pack(stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000),
+                self._frames,
+                self._tf.pack(float(pose[0]), float(pose[1]), 0.0, *yaw_to_quat(float(pose[2]))),
+            )
+        )
 
 
 class PoseArrayWriter:
@@ -250,9 +265,16 @@ class PoseArrayWriter:
         body = np.zeros((p.shape[0], 7))
         body[:, 0], body[:, 1] = p[:, 0], p[:, 1]
         body[:, 5], body[:, 6] = np.sin(0.5 * p[:, 2]), np.cos(0.5 * p[:, 2])
-        return b"".join((_LITTLE_ENDIAN, _STAMP.pack(stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000),
-                         self._frame, struct.pack("<I", p.shape[0]), self._pad if p.shape[0] else b"",
-                         body.astype("<f8").tobytes()))
+        return b"".join(
+            (
+                _LITTLE_ENDIAN,
+                _STAMP.pack(stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000),
+                self._frame,
+                struct.pack("<I", p.shape[0]),
+                self._pad if p.shape[0] else b"",
+                body.astype("<f8").tobytes(),
+            )
+        )
 
 
 def tf_message_stamp(raw: bytes) -> int | None:

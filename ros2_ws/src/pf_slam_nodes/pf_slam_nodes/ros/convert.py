@@ -1,4 +1,5 @@
 """Message <-> ndarray conversions at the edge of the nodes (no spinning needed to test them)."""
+
 from __future__ import annotations
 
 import array
@@ -7,11 +8,12 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped, TransformStamped
 from nav_msgs.msg import OccupancyGrid
-from pf_slam_interfaces.msg import ParticleArray
 from sensor_msgs.msg import LaserScan
 
-from ..io.bag import stamp_ns_of as stamp_to_ns  # noqa: F401  (Time or message -> int ns)
+from pf_slam_interfaces.msg import ParticleArray
+
 from ..core.geometry import yaw_to_quat
+from ..io.bag import stamp_ns_of as stamp_to_ns  # noqa: F401  (Time or message -> int ns)
 from .cdr import CdrReader
 
 
@@ -25,10 +27,19 @@ def ns_to_stamp(ns: int) -> Time:
     return Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
 
 
-def particles_to_msg(poses: np.ndarray, log_weights: np.ndarray, *, stamp_ns: int,
-                     frame_id: str, scan_index: int, update: bool,
-                     odom_pose: np.ndarray, pending_delta: np.ndarray | None = None,
-                     pose: np.ndarray | None = None, mount=None) -> ParticleArray:
+def particles_to_msg(
+    poses: np.ndarray,
+    log_weights: np.ndarray,
+    *,
+    stamp_ns: int,
+    frame_id: str,
+    scan_index: int,
+    update: bool,
+    odom_pose: np.ndarray,
+    pending_delta: np.ndarray | None = None,
+    pose: np.ndarray | None = None,
+    mount=None,
+) -> ParticleArray:
     """(N,3) poses and (N,) log-weights -> ParticleArray (struct of arrays)."""
     msg = ParticleArray()
     msg.header.stamp = ns_to_stamp(stamp_ns)
@@ -36,8 +47,7 @@ def particles_to_msg(poses: np.ndarray, log_weights: np.ndarray, *, stamp_ns: in
     msg.scan_index = int(scan_index)
     msg.update = bool(update)
     msg.odom_pose = np.asarray(odom_pose, dtype=np.float64).reshape(3)
-    msg.pending_delta = (np.zeros(3) if pending_delta is None
-                         else np.asarray(pending_delta, dtype=np.float64).reshape(3))
+    msg.pending_delta = np.zeros(3) if pending_delta is None else np.asarray(pending_delta, dtype=np.float64).reshape(3)
     msg.pose = np.zeros(3) if pose is None else np.asarray(pose, dtype=np.float64).reshape(3)
     if mount is not None and len(mount):
         msg.mount = array.array("d", np.ascontiguousarray(mount, dtype=np.float64).reshape(12).tobytes())
@@ -53,8 +63,10 @@ def msg_to_particles(msg: ParticleArray) -> tuple[np.ndarray, np.ndarray]:
     """ParticleArray -> ((N,3) poses, (N,) log-weights); raises ValueError on ragged arrays."""
     n = len(msg.x)
     if not (len(msg.y) == len(msg.theta) == len(msg.log_weight) == n):
-        raise ValueError(f"ParticleArray has arrays of different lengths: x={n} y={len(msg.y)} "
-                         f"theta={len(msg.theta)} log_weight={len(msg.log_weight)}")
+        raise ValueError(
+            f"ParticleArray has arrays of different lengths: x={n} y={len(msg.y)} "
+            f"theta={len(msg.theta)} log_weight={len(msg.log_weight)}"
+        )
     poses = np.empty((n, 3))
     poses[:, 0] = np.frombuffer(msg.x, dtype=np.float64) if n else []
     poses[:, 1] = np.frombuffer(msg.y, dtype=np.float64) if n else []
@@ -93,8 +105,9 @@ def transform(parent: str, child: str, pose: np.ndarray, stamp_ns: int) -> Trans
     return t
 
 
-def grid_to_msg(occupancy: np.ndarray, resolution: float, origin_xy: tuple[float, float],
-                stamp_ns: int, frame_id: str) -> OccupancyGrid:
+def grid_to_msg(
+    occupancy: np.ndarray, resolution: float, origin_xy: tuple[float, float], stamp_ns: int, frame_id: str
+) -> OccupancyGrid:
     """int8 (H,W) occupancy (row = y) -> nav_msgs/OccupancyGrid."""
     msg = OccupancyGrid()
     msg.header.stamp = ns_to_stamp(stamp_ns)
@@ -115,5 +128,8 @@ def msg_to_grid(msg: OccupancyGrid) -> tuple[np.ndarray, float, tuple[float, flo
     data = np.frombuffer(msg.data, dtype=np.int8)
     if data.size != h * w:
         raise ValueError(f"OccupancyGrid data has {data.size} cells, info says {w}x{h}")
-    return (data.reshape(h, w), float(msg.info.resolution),
-            (float(msg.info.origin.position.x), float(msg.info.origin.position.y)))
+    return (
+        data.reshape(h, w),
+        float(msg.info.resolution),
+        (float(msg.info.origin.position.x), float(msg.info.origin.position.y)),
+    )

@@ -14,6 +14,7 @@ two runs at once cannot meet.
 An explicit domain (``--domain N`` or a set ROS_DOMAIN_ID) keeps the open behaviour: that domain
 with the discovery the environment asks for, so rviz2 or Foxglove can watch the run live.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -21,9 +22,9 @@ import fcntl
 import os
 import re
 import threading
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
 
 #: domains a run or a test may take for itself: their RTPS ports (7400 + 250 d ...) stay below
 #: Linux's ephemeral range (32768..), as the ROS docs advise (0..101)
@@ -119,8 +120,10 @@ def claim_domain(pool: range | list[int] = POOL, probe: bool = True) -> Iterator
         finally:
             os.close(fd)  # no LOCK_UN: a child holding a copy of fd keeps the domain until it exits
         return
-    raise DomainError(f"no free ROS domain in {pool[0]}..{pool[-1]} (all held by other pf-slam runs or "
-                      f"used by ROS 2 nodes on this host); choose one with --domain N")
+    raise DomainError(
+        f"no free ROS domain in {pool[0]}..{pool[-1]} (all held by other pf-slam runs or "
+        f"used by ROS 2 nodes on this host); choose one with --domain N"
+    )
 
 
 def holder(domain: int) -> int | None:
@@ -157,6 +160,7 @@ def _ancestors() -> set[int]:
 class RosDomain:
     """The domain of a run: its id, whether it is isolated, the discovery range, and who chose it
     ('pf-slam' (free, held by the run), '--domain' or 'ROS_DOMAIN_ID')."""
+
     id: int
     isolated: bool
     discovery: str
@@ -172,10 +176,14 @@ class RosDomain:
 
     def describe(self) -> str:
         if self.isolated:
-            return (f"[pf-slam] ROS domain {self.id} (isolated: free, held by this run; discovery "
-                    f"{self.discovery}; to watch the run live in rviz2 or Foxglove, give --domain N or set ROS_DOMAIN_ID)")
-        line = (f"[pf-slam] ROS domain {self.id} (open, from {self.chosen_by}; discovery {self.discovery}: "
-                f"viewers can watch, and any other ROS 2 node on this domain reaches the run)")
+            return (
+                f"[pf-slam] ROS domain {self.id} (isolated: free, held by this run; discovery "
+                f"{self.discovery}; to watch the run live in rviz2 or Foxglove, give --domain N or set ROS_DOMAIN_ID)"
+            )
+        line = (
+            f"[pf-slam] ROS domain {self.id} (open, from {self.chosen_by}; discovery {self.discovery}: "
+            f"viewers can watch, and any other ROS 2 node on this domain reaches the run)"
+        )
         return line if self.warning is None else f"{line}\n[pf-slam] warning: {self.warning}"
 
     def environ_overrides(self) -> dict[str, str | None]:
@@ -209,11 +217,14 @@ def explicit_domain(domain_id: int | None = None) -> tuple[int, str] | None:
         try:
             value = int(raw)
         except ValueError:
-            raise DomainError(f"ROS_DOMAIN_ID={raw!r} is not a number (0..{MAX_DOMAIN}); unset it for an "
-                              "isolated run") from None
+            raise DomainError(
+                f"ROS_DOMAIN_ID={raw!r} is not a number (0..{MAX_DOMAIN}); unset it for an isolated run"
+            ) from None
     if not 0 <= int(value) <= MAX_DOMAIN:
-        raise DomainError(f"{who} {value} is out of range: a ROS domain is 0..{MAX_DOMAIN} (0..101 on Linux "
-                          "keeps clear of the ephemeral ports)")
+        raise DomainError(
+            f"{who} {value} is out of range: a ROS domain is 0..{MAX_DOMAIN} (0..101 on Linux "
+            "keeps clear of the ephemeral ports)"
+        )
     return int(value), who
 
 
@@ -228,9 +239,11 @@ def run_domain(domain_id: int | None = None, single_participant: bool = True) ->
         pid = holder(chosen[0])
         warning = None
         if pid is not None and pid not in _ancestors():
-            warning = (f"ROS domain {chosen[0]} is held by another pf-slam run or test "
-                       f"({'pid ' + str(pid) if pid > 0 else 'pid unknown'}): both will receive each "
-                       "other's topics; choose another --domain")
+            warning = (
+                f"ROS domain {chosen[0]} is held by another pf-slam run or test "
+                f"({'pid ' + str(pid) if pid > 0 else 'pid unknown'}): both will receive each "
+                "other's topics; choose another --domain"
+            )
         yield RosDomain(chosen[0], False, disc, chosen[1], warning=warning)
         return
     discovery = "OFF" if single_participant else "LOCALHOST"
@@ -249,6 +262,7 @@ def init_context(dom: RosDomain, first_node: str):
     lock, then restored: other code and concurrent runs in this process keep their environment.
     Returns (context, node)."""
     import rclpy
+
     ctx = rclpy.Context()
     with _ENV_LOCK, _environ(**dom.environ_overrides()):
         rclpy.init(context=ctx, domain_id=dom.id)
@@ -286,6 +300,7 @@ def ros_context(domain_id: int | None = None, name: str = "pf_slam_tool"):
     lives as long as the block, so the participant made with the isolated settings does too.
     Yields (context, RosDomain); shut down afterwards."""
     import rclpy
+
     with run_domain(domain_id, single_participant=True) as dom:
         ctx, keeper = init_context(dom, name)
         try:

@@ -1,4 +1,5 @@
 """What the parts of `pf-slam run` share: the graph's nodes and inputs, the run's error, the run's plan."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -26,15 +27,24 @@ INPUT_TYPES: dict[str, tuple[str, ...]] = {
 }
 
 
-DEFAULT_INPUTS = {"scan": "/scan", "odom": "/odom", "encoders": "/encoders", "fog": "/fog", "imu": "/imu",
-                  "stereo_left": TEXTURE_INPUT, "stereo_right": "/stereo/right/image_raw",
-                  "rgbd_rgb": "/kinect/rgb/image_raw", "rgbd_depth": "/kinect/depth/image_raw"}
+DEFAULT_INPUTS = {
+    "scan": "/scan",
+    "odom": "/odom",
+    "encoders": "/encoders",
+    "fog": "/fog",
+    "imu": "/imu",
+    "stereo_left": TEXTURE_INPUT,
+    "stereo_right": "/stereo/right/image_raw",
+    "rgbd_rgb": "/kinect/rgb/image_raw",
+    "rgbd_depth": "/kinect/depth/image_raw",
+}
 
 
 @dataclass
 class RunPlan:
     """What a run will do, decided before anything starts: the bag and what it holds, each node's
     parameters (all layers merged), and how the graph runs (see graph.run for the arguments)."""
+
     bag: str
     params_file: str | None
     rate: str

@@ -1,5 +1,6 @@
 """Bag inspection, bring your own bag: which topics feed the graph, their header stamps against
 the record times, and the parameters the bag implies."""
+
 from __future__ import annotations
 
 from typing import Any
@@ -11,10 +12,17 @@ from .common import DEFAULT_INPUTS, INPUT_TYPES, RunError
 from .mount import LidarMount, lidar_mount
 from .sample import BagSample, sample_bag
 
-
-ROLE_WORDS = {"scan": "lidar (LaserScan)", "odom": "odometry (Odometry)", "encoders": "wheel encoders (JointState)",
-              "fog": "gyro yaw (fog)", "imu": "gyro yaw (Imu angular_velocity.z)", "stereo_left": "stereo left (texture)", "stereo_right": "stereo right (texture)",
-              "rgbd_rgb": "RGB-D colour (texture)", "rgbd_depth": "RGB-D depth (texture)"}
+ROLE_WORDS = {
+    "scan": "lidar (LaserScan)",
+    "odom": "odometry (Odometry)",
+    "encoders": "wheel encoders (JointState)",
+    "fog": "gyro yaw (fog)",
+    "imu": "gyro yaw (Imu angular_velocity.z)",
+    "stereo_left": "stereo left (texture)",
+    "stereo_right": "stereo right (texture)",
+    "rgbd_rgb": "RGB-D colour (texture)",
+    "rgbd_depth": "RGB-D depth (texture)",
+}
 
 
 def select_inputs(bag: str, info: dict, requested: dict[str, str] | None = None) -> dict[str, str]:
@@ -48,8 +56,12 @@ def select_inputs(bag: str, info: dict, requested: dict[str, str] | None = None)
     if "odom" in sel and "encoders" in sel:
         del sel["odom" if "encoders" in req and "odom" not in req else "encoders"]
     if "odom" not in sel and "encoders" not in sel:
-        raise _no_input(bag, info, "needs nav_msgs/msg/Odometry (--odom-topic) or sensor_msgs/msg/JointState "
-                                   f"wheel angles (--encoders-topic) for the motion model; found: {found}")
+        raise _no_input(
+            bag,
+            info,
+            "needs nav_msgs/msg/Odometry (--odom-topic) or sensor_msgs/msg/JointState "
+            f"wheel angles (--encoders-topic) for the motion model; found: {found}",
+        )
     if "encoders" not in sel or "fog" in sel:
         sel.pop("imu", None)  # one gyro, with the encoders only (Odometry has its own yaw)
     if "encoders" not in sel:
@@ -78,7 +90,9 @@ def _no_input(bag: str, info: dict, what: str) -> RunError:
 
 def topic_remaps(inputs: dict[str, str]) -> dict[str, str]:
     """The nodes' relative input names remapped to the bag's topics (as `ros2 launch ... scan_topic:=`)."""
-    return {role: t for role, t in inputs.items() if role in ("scan", "odom", "encoders", "fog", "imu") and t != f"/{role}"}
+    return {
+        role: t for role, t in inputs.items() if role in ("scan", "odom", "encoders", "fog", "imu") and t != f"/{role}"
+    }
 
 
 def input_report(bag: str, info: dict, inputs: dict[str, str], predictor: dict[str, Any]) -> str:
@@ -156,12 +170,16 @@ def inspect_stamps(bag: str | BagSample, inputs: dict[str, str], max_scans: int 
         jumps = int(np.count_nonzero(np.abs(np.diff(hdr - rec)) > STAMP_JUMP_NS))
         if stuck >= 0.5 * steps:
             restamp[topic] = "record"
-            notes[topic] = (f"header stamps stuck: {stuck} of {steps} equal to the previous one while the "
-                            f"record time advances ({(rec[-1] - rec[0]) / 1e9:.1f} s); replayed with the record times")
+            notes[topic] = (
+                f"header stamps stuck: {stuck} of {steps} equal to the previous one while the "
+                f"record time advances ({(rec[-1] - rec[0]) / 1e9:.1f} s); replayed with the record times"
+            )
         elif jumps >= 0.05 * steps:
             restamp[topic] = "record"
-            notes[topic] = (f"header stamps do not follow the record time: {jumps} of {steps} steps jump by "
-                            f"more than {STAMP_JUMP_NS / 1e9:.0f} s against it; replayed with the record times")
+            notes[topic] = (
+                f"header stamps do not follow the record time: {jumps} of {steps} steps jump by "
+                f"more than {STAMP_JUMP_NS / 1e9:.0f} s against it; replayed with the record times"
+            )
 
     def replayed(topic: str) -> np.ndarray:
         a, fix = arr[topic], restamp.get(topic)
@@ -184,16 +202,25 @@ def inspect_stamps(bag: str | BagSample, inputs: dict[str, str], max_scans: int 
             notes[odom_topic] = (
                 f"stamps {-off / 1e9:+.3f} s from the scans' (median over {len(s_rec)} scans of the header stamp "
                 f"difference to the odometry nearest in record time, less their record time difference): "
-                + ("shifted onto the scans' clock" if fix else "NOT corrected (a gyro stream is used); "
-                   "the pairing is wrong by that much"))
+                + (
+                    "shifted onto the scans' clock"
+                    if fix
+                    else "NOT corrected (a gyro stream is used); the pairing is wrong by that much"
+                )
+            )
             if fix:
                 restamp[odom_topic] = int(off) if restamp.get(odom_topic) != "record" else "record"
 
     scans = replayed(scan_topic)
     odom = set(replayed(odom_topic).tolist())
     paired = int(sum(int(s) in odom for s in scans))
-    return {"restamp": restamp, "notes": notes, "pairing": (paired, len(scans)), "scan_frame": scan_frame,
-            "scan_range_max": scan_range_max}
+    return {
+        "restamp": restamp,
+        "notes": notes,
+        "pairing": (paired, len(scans)),
+        "scan_frame": scan_frame,
+        "scan_range_max": scan_range_max,
+    }
 
 
 def restamp_param(restamp: dict[str, Any]) -> str:
@@ -201,8 +228,13 @@ def restamp_param(restamp: dict[str, Any]) -> str:
     return ",".join(f"{t}={v}" for t, v in sorted(restamp.items()))
 
 
-def detect_inputs(bag: str, info: dict, inputs: dict[str, str] | None = None,
-                  mount: "LidarMount | None" = None, stamps: dict[str, Any] | None = None) -> dict[str, dict[str, Any]]:
+def detect_inputs(
+    bag: str,
+    info: dict,
+    inputs: dict[str, str] | None = None,
+    mount: LidarMount | None = None,
+    stamps: dict[str, Any] | None = None,
+) -> dict[str, dict[str, Any]]:
     """Parameters implied by the bag: odometry source and pairing, gyro, wheel geometry (from a
     converted bag's custom data), and the lidar's mount (from /tf_static, see lidar_mount:
     filter.sensor_offset_* when planar, laser.extrinsic otherwise). `inputs`: select_inputs()'s
@@ -226,28 +258,46 @@ def detect_inputs(bag: str, info: dict, inputs: dict[str, str] | None = None,
     if source == "encoders":
         if "pf_slam.wheel_radius_m" in custom:  # written by `convert mines`
             d = 2.0 * float(custom["pf_slam.wheel_radius_m"])
-            predictor.update({"wheels.left_diameter_m": d, "wheels.right_diameter_m": d,
-                              "wheels.base_m": 2.0 * float(custom["pf_slam.half_axle_m"])})
+            predictor.update(
+                {
+                    "wheels.left_diameter_m": d,
+                    "wheels.right_diameter_m": d,
+                    "wheels.base_m": 2.0 * float(custom["pf_slam.half_axle_m"]),
+                }
+            )
         elif "pf_slam.wheel_base_m" in custom:  # written by `convert kaist`
-            predictor.update({"wheels.left_diameter_m": float(custom["pf_slam.left_wheel_diameter_m"]),
-                              "wheels.right_diameter_m": float(custom["pf_slam.right_wheel_diameter_m"]),
-                              "wheels.base_m": float(custom["pf_slam.wheel_base_m"])})
+            predictor.update(
+                {
+                    "wheels.left_diameter_m": float(custom["pf_slam.left_wheel_diameter_m"]),
+                    "wheels.right_diameter_m": float(custom["pf_slam.right_wheel_diameter_m"]),
+                    "wheels.base_m": float(custom["pf_slam.wheel_base_m"]),
+                }
+            )
         if "fog" in inputs:
-            predictor["fog_format"] = {"pf_slam_interfaces/msg/FogBatch": "batch",
-                                       "geometry_msgs/msg/Vector3Stamped": "vector3"}[topics[inputs["fog"]][0]]
+            predictor["fog_format"] = {
+                "pf_slam_interfaces/msg/FogBatch": "batch",
+                "geometry_msgs/msg/Vector3Stamped": "vector3",
+            }[topics[inputs["fog"]][0]]
         elif "imu" in inputs:
             predictor["fog_format"] = "imu"
     out: dict[str, dict[str, Any]] = {"predictor": predictor, "bag_replay": {"scan_topic": scan_topic}}
     if "stereo_left" in inputs and "stereo_right" in inputs:
         left, right = inputs["stereo_left"], inputs["stereo_right"]
-        out["texture"] = {"left_topic": left, "right_topic": right,
-                          "left_info_topic": left.rsplit("/", 1)[0] + "/camera_info",
-                          "right_info_topic": right.rsplit("/", 1)[0] + "/camera_info"}
+        out["texture"] = {
+            "left_topic": left,
+            "right_topic": right,
+            "left_info_topic": left.rsplit("/", 1)[0] + "/camera_info",
+            "right_info_topic": right.rsplit("/", 1)[0] + "/camera_info",
+        }
     elif "rgbd_rgb" in inputs and "rgbd_depth" in inputs:  # an RGB-D camera: the depth mode
         rgb, depth = inputs["rgbd_rgb"], inputs["rgbd_depth"]
-        out["texture"] = {"camera": "depth", "rgb_topic": rgb, "depth_topic": depth,
-                          "rgb_info_topic": rgb.rsplit("/", 1)[0] + "/camera_info",
-                          "depth_info_topic": depth.rsplit("/", 1)[0] + "/camera_info"}
+        out["texture"] = {
+            "camera": "depth",
+            "rgb_topic": rgb,
+            "depth_topic": depth,
+            "rgb_info_topic": rgb.rsplit("/", 1)[0] + "/camera_info",
+            "depth_info_topic": depth.rsplit("/", 1)[0] + "/camera_info",
+        }
     lm = mount if mount is not None else lidar_mount(bag, info, inputs, scan_frame=scan_frame)
     out["/**"] = dict(lm.params())
     if lm.base_from_tf:
@@ -257,8 +307,9 @@ def detect_inputs(bag: str, info: dict, inputs: dict[str, str] | None = None,
     return out
 
 
-def _check_stamps_and_pairing(bag: str, stamps: dict[str, Any], per_node: dict[str, dict[str, Any]],
-                              params_file: str | None) -> dict[str, Any]:
+def _check_stamps_and_pairing(
+    bag: str, stamps: dict[str, Any], per_node: dict[str, dict[str, Any]], params_file: str | None
+) -> dict[str, Any]:
     """Apply inspect_stamps()'s fixes to the replay, and refuse a pairing that cannot work on
     this bag: odom_sync exact (from a parameter file or a flag) where fewer than 90 % of the
     scans checked have an odometry message with their stamp would pair nothing; interpolate is
@@ -267,8 +318,10 @@ def _check_stamps_and_pairing(bag: str, stamps: dict[str, Any], per_node: dict[s
     warnings, timestamps = [], {}
     for topic, why in sorted(stamps["notes"].items()):
         fix = stamps["restamp"].get(topic)
-        timestamps[topic] = {"fix": ("record time" if fix == "record" else
-                                     None if fix is None else f"{fix / 1e9:+.3f} s"), "why": why}
+        timestamps[topic] = {
+            "fix": ("record time" if fix == "record" else None if fix is None else f"{fix / 1e9:+.3f} s"),
+            "why": why,
+        }
         warnings.append(f"{bag}: {topic}: {why}")
     if stamps["restamp"]:
         per_node["bag_replay"]["restamp"] = restamp_param(stamps["restamp"])
@@ -277,16 +330,18 @@ def _check_stamps_and_pairing(bag: str, stamps: dict[str, Any], per_node: dict[s
     sync = {"used": pred.get("odom_sync", "interpolate"), "scans_checked": checked, "with_odometry_stamp": paired}
     if sync["used"] == "exact" and checked and paired < 0.9 * checked:
         where = f" (from {params_file} or a flag)" if params_file else " (from a flag)"
-        warnings.append(f"{bag}: odom_sync exact{where} cannot work on this bag: only {paired} of the first "
-                        f"{checked} scans have an odometry message with their stamp (the odometry is logged "
-                        f"at its own times); pairing by interpolation instead. Set odom_sync: interpolate "
-                        f"(or leave it out: pf-slam run picks it from the bag)")
+        warnings.append(
+            f"{bag}: odom_sync exact{where} cannot work on this bag: only {paired} of the first "
+            f"{checked} scans have an odometry message with their stamp (the odometry is logged "
+            f"at its own times); pairing by interpolation instead. Set odom_sync: interpolate "
+            f"(or leave it out: pf-slam run picks it from the bag)"
+        )
         pred["odom_sync"] = "interpolate"
         sync.update(requested="exact", used="interpolate")
     return {"warnings": warnings, "odom_sync": sync, "timestamps": timestamps}
 
 
-def tf_inputs(topics: dict, mount: "LidarMount | None") -> dict[str, dict[str, Any]]:
+def tf_inputs(topics: dict, mount: LidarMount | None) -> dict[str, dict[str, Any]]:
     """REP-105 transforms the bag already has, so the graph does not publish them twice: its
     own /tf (odom -> base_link from the robot) turns the predictor's off, a /tf_static mount of
     the scan's frame (`mount` from /tf_static, see lidar_mount) the mapper's."""

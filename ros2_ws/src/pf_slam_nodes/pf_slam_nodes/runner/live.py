@@ -13,13 +13,15 @@ does in a bag's /tf_static (mount parameters given by the user skip that): the n
 most for the transform, and the correlator and the mapper wait for its decision). `use_sim_time` follows /clock: each node switches
 to the simulated clock at the first /clock message (`--sim-time auto`, the default).
 """
+
 from __future__ import annotations
 
 import os
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from ..nodes.common import follow_clock
 from ..ros.domain import RosDomain
@@ -48,8 +50,12 @@ def live_domain(domain_id: int | None) -> LiveDomain:
         dom = int(env) if env.strip() else 0
     except ValueError:
         raise RunError(f"ROS_DOMAIN_ID={env!r} is not a number") from None
-    return LiveDomain(dom, False, os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "SUBNET"),
-                      "ROS_DOMAIN_ID" if env.strip() else "the default (0)")
+    return LiveDomain(
+        dom,
+        False,
+        os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "SUBNET"),
+        "ROS_DOMAIN_ID" if env.strip() else "the default (0)",
+    )
 
 
 @dataclass
@@ -62,11 +68,17 @@ class LivePlan:
     user_mount: bool  # the user gave mount parameters: no lookup on /tf_static, /tf
 
 
-def plan_live(params_file: str | None = None, profile: str | None = None, odometry: str | None = None,
-              input_topics: dict[str, str | None] | None = None, texture: bool = False,
-              overrides: dict[str, dict[str, Any]] | None = None) -> LivePlan:
+def plan_live(
+    params_file: str | None = None,
+    profile: str | None = None,
+    odometry: str | None = None,
+    input_topics: dict[str, str | None] | None = None,
+    texture: bool = False,
+    overrides: dict[str, dict[str, Any]] | None = None,
+) -> LivePlan:
     """Each node's parameters (checked), the topic remaps and the profile line; nothing started."""
     from ..profiles import PROFILES, profile_file
+
     file_layer = load_params(params_file) if params_file else {}
     topics_ = {**params_topics(file_layer), **{k: v for k, v in (input_topics or {}).items() if v}}
     inputs = {role: topics_.get(role, DEFAULT_INPUTS[role]) for role in DEFAULT_INPUTS}
@@ -78,25 +90,39 @@ def plan_live(params_file: str | None = None, profile: str | None = None, odomet
     prof_file = profile_file(profile) if profile != "none" else None
     prof_layer = load_params(prof_file) if prof_file else {}
     params_topics(prof_layer)
-    line = (f"[pf-slam] profile: {profile}" + (f" ({prof_file})" if prof_file else "")
-            + (f"; --params {params_file} on top" if params_file and prof_file else
-               (f" (--params {params_file} is the whole tuning)" if params_file else "")))
+    line = (
+        f"[pf-slam] profile: {profile}"
+        + (f" ({prof_file})" if prof_file else "")
+        + (
+            f"; --params {params_file} on top"
+            if params_file and prof_file
+            else (f" (--params {params_file} is the whole tuning)" if params_file else "")
+        )
+    )
     cli: dict[str, dict[str, Any]] = {"predictor": {}}
     if odometry is not None:
         if odometry not in ODOMETRY_CHOICES:
             raise RunError(f"--odometry must be one of {', '.join(ODOMETRY_CHOICES)}, got {odometry!r}")
         cli["predictor"]["odometry_source"] = odometry
-    layers = ([prof_layer] if prof_layer else []) + ([file_layer] if file_layer else []) + [cli] \
+    layers = (
+        ([prof_layer] if prof_layer else [])
+        + ([file_layer] if file_layer else [])
+        + [cli]
         + ([overrides] if overrides else [])
+    )
     node_names = LIVE_NODES + (("texture",) if texture else ())
     per_node = {n: node_params(layers, n) for n in node_names}
-    labels = ([lambda sec: f"profile {profile} ({prof_file}), section {sec!r}"] if prof_layer else []) \
-        + ([lambda sec: f"{params_file}, section {sec!r}"] if file_layer else []) \
-        + [lambda sec: "the command line"] + ([lambda sec: "the command line"] if overrides else [])
+    labels = (
+        ([lambda sec: f"profile {profile} ({prof_file}), section {sec!r}"] if prof_layer else [])
+        + ([lambda sec: f"{params_file}, section {sec!r}"] if file_layer else [])
+        + [lambda sec: "the command line"]
+        + ([lambda sec: "the command line"] if overrides else [])
+    )
     check_node_values(per_node, list(zip(labels, layers)))
     user = [file_layer] + ([overrides] if overrides else [])
-    user_mount = any(k in layer.get(sec, {}) for layer in user for sec in ("/**", "correlator", "mapper")
-                     for k in MOUNT_PARAMS)
+    user_mount = any(
+        k in layer.get(sec, {}) for layer in user for sec in ("/**", "correlator", "mapper") for k in MOUNT_PARAMS
+    )
     return LivePlan(per_node, node_names, topic_remaps(inputs), inputs, line, user_mount)
 
 
@@ -108,20 +134,31 @@ def _report_mount(node, log: Callable[[str], None]) -> None:
         log(f"[pf-slam] {decision['text']}")
         for w in decision.get("warnings", []):
             log(f"[pf-slam] warning: {w}")
+
     receive_mount(node, show)
 
 
-def live(params_file: str | None = None, profile: str | None = None, out: str | None = None,
-         processes: str = "single", texture: bool = False, domain_id: int | None = None,
-         input_topics: dict[str, str | None] | None = None, odometry: str | None = None,
-         sim_time: str = "auto", mount_wait_s: float = 5.0, overrides: dict[str, dict[str, Any]] | None = None,
-         log: Callable[[str], None] = lambda s: print(s, file=sys.stderr, flush=True),
-         stop: list[str] | None = None) -> int:
+def live(
+    params_file: str | None = None,
+    profile: str | None = None,
+    out: str | None = None,
+    processes: str = "single",
+    texture: bool = False,
+    domain_id: int | None = None,
+    input_topics: dict[str, str | None] | None = None,
+    odometry: str | None = None,
+    sim_time: str = "auto",
+    mount_wait_s: float = 5.0,
+    overrides: dict[str, dict[str, Any]] | None = None,
+    log: Callable[[str], None] = lambda s: print(s, file=sys.stderr, flush=True),
+    stop: list[str] | None = None,
+) -> int:
     """Run the live graph until a stop signal (or `stop` gets an entry); with `out`, save the map and
     the trajectory there at the end. Returns the exit code."""
     import rclpy
 
     from .supervise import _catch_stop_signals, _make_node, _spawn, _stop_children, make_executor
+
     if processes not in ("single", "multi"):
         raise RunError(f"--processes must be 'single' or 'multi', got {processes!r}")
     if sim_time not in ("auto", "true", "false"):
@@ -132,9 +169,12 @@ def live(params_file: str | None = None, profile: str | None = None, out: str | 
             p["use_sim_time"] = sim_time == "true"
     dom = live_domain(domain_id)
     log(plan.profile_line)
-    log(f"[pf-slam] live on ROS domain {dom.id} ({dom.chosen_by}); inputs: {plan.inputs['scan']}, "
+    log(
+        f"[pf-slam] live on ROS domain {dom.id} ({dom.chosen_by}); inputs: {plan.inputs['scan']}, "
         + {"odom": plan.inputs["odom"], "encoders": plan.inputs["encoders"], "tf": "/tf (odom -> base)"}[
-            str(plan.per_node["predictor"].get("odometry_source", "odom"))])
+            str(plan.per_node["predictor"].get("odometry_source", "odom"))
+        ]
+    )
     stop = [] if stop is None else stop
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=dom.id)
@@ -163,9 +203,12 @@ def live(params_file: str | None = None, profile: str | None = None, out: str | 
                 logs = Path(out) if out else Path(os.environ.get("TMPDIR", "/tmp")) / f"pf_slam_live_{os.getpid()}"
                 children = _spawn(plan.per_node, dom, logs, plan.remaps, follow_clock=sim_time == "auto")
                 log(f"[pf-slam] node logs in {logs / 'logs'}")
-            log(f"[pf-slam] live: {', '.join(plan.node_names)} running; save the map with the service "
-                f"pf_slam/save_map (pf_slam_interfaces/srv/SaveMap){'; on Ctrl-C it goes to ' + out if out else ''}")
+            log(
+                f"[pf-slam] live: {', '.join(plan.node_names)} running; save the map with the service "
+                f"pf_slam/save_map (pf_slam_interfaces/srv/SaveMap){'; on Ctrl-C it goes to ' + out if out else ''}"
+            )
             from rclpy.task import Future
+
             done = Future()
 
             def check() -> None:  # on a timer: no Python per message in the spin loop
@@ -174,6 +217,7 @@ def live(params_file: str | None = None, profile: str | None = None, out: str | 
                 for name, c in children.items():
                     if c.poll() is not None and not done.done():
                         done.set_result(f"node {name} exited with code {c.returncode}; log: {logs / 'logs' / name}.log")
+
             control.create_timer(0.1, check)
             while not done.done():
                 ex.spin_until_future_complete(done, timeout_sec=1.0)
@@ -194,9 +238,11 @@ def live(params_file: str | None = None, profile: str | None = None, out: str | 
 def save_map_via_service(ctx, executor, out: str, log: Callable[[str], None], timeout_s: float = 10.0) -> int:
     """Ask the mapper (this process or another) to save into `out`; 0 on success."""
     import rclpy
+
     from pf_slam_interfaces.srv import SaveMap
 
     from ..ros import topics
+
     node = rclpy.create_node("pf_slam_live_saver", context=ctx)
     executor.add_node(node)
     try:
@@ -226,6 +272,16 @@ def live_cli(args) -> int:
     overrides: dict[str, dict[str, Any]] = {"/**": o} if o else {}
     if getattr(args, "sensor_qos", None):
         overrides["predictor"] = {"sensor_qos": args.sensor_qos}
-    return live(args.params, args.profile, args.out, args.processes, args.texture, args.domain,
-                {role: getattr(args, f"{role}_topic", None) for role in DEFAULT_INPUTS},
-                args.odometry, args.sim_time, args.mount_wait, overrides or None)
+    return live(
+        args.params,
+        args.profile,
+        args.out,
+        args.processes,
+        args.texture,
+        args.domain,
+        {role: getattr(args, f"{role}_topic", None) for role in DEFAULT_INPUTS},
+        args.odometry,
+        args.sim_time,
+        args.mount_wait,
+        overrides or None,
+    )

@@ -1,4 +1,5 @@
 """The lidar's mount from the bag's /tf_static (bag inspection, part 2)."""
+
 from __future__ import annotations
 
 import math
@@ -12,10 +13,14 @@ from ..io.bag import deserialize
 from .params import node_params
 from .sample import BagSample, sample_bag
 
-
 #: the parameters that describe the lidar's mount (planar: filter.sensor_offset_*; 3D: laser.extrinsic)
-MOUNT_PARAMS = ("filter.sensor_offset_x_m", "filter.sensor_offset_y_m", "filter.sensor_offset_yaw_rad",
-                "laser.extrinsic", "laser.dynamic_frame")
+MOUNT_PARAMS = (
+    "filter.sensor_offset_x_m",
+    "filter.sensor_offset_y_m",
+    "filter.sensor_offset_yaw_rad",
+    "laser.extrinsic",
+    "laser.dynamic_frame",
+)
 
 
 @dataclass
@@ -25,6 +30,7 @@ class LidarMount:
     ``source``: "/tf_static" (composed along ``chain``, base frame first) or "parameters"
     (the bag has none: the graph's parameters, default identity). ``warnings``: what the user
     must know (a scan frame missing from /tf_static, a chain that does not reach the base)."""
+
     source: str
     base_frame: str
     scan_frame: str
@@ -53,11 +59,16 @@ class LidarMount:
         if self.source == "parameters":
             return {}
         if self.dynamic_frame:
-            return {"laser.dynamic_frame": self.dynamic_frame,
-                    "laser.extrinsic": [float(v) for v in self.rot.reshape(-1)] + [float(v) for v in self.t]}
+            return {
+                "laser.dynamic_frame": self.dynamic_frame,
+                "laser.extrinsic": [float(v) for v in self.rot.reshape(-1)] + [float(v) for v in self.t],
+            }
         if self.planar:
-            return {"filter.sensor_offset_x_m": float(self.t[0]), "filter.sensor_offset_y_m": float(self.t[1]),
-                    "filter.sensor_offset_yaw_rad": float(math.atan2(self.rot[1, 0], self.rot[0, 0]))}
+            return {
+                "filter.sensor_offset_x_m": float(self.t[0]),
+                "filter.sensor_offset_y_m": float(self.t[1]),
+                "filter.sensor_offset_yaw_rad": float(math.atan2(self.rot[1, 0], self.rot[0, 0])),
+            }
         return {"laser.extrinsic": [float(v) for v in self.rot.reshape(-1)] + [float(v) for v in self.t]}
 
     def describe(self) -> str:
@@ -65,16 +76,23 @@ class LidarMount:
         roll, pitch, yaw = (math.degrees(v) for v in self.rpy)
         frames = " -> ".join(self.chain) if self.chain else f"{self.base_frame} -> {self.scan_frame}"
         if self.dynamic_frame:
-            return (f"lidar on a moving mount: {frames}: {self.base_frame} -> {self.dynamic_frame} from /tf at each "
-                    f"scan's stamp, {self.dynamic_frame} -> {self.scan_frame} from /tf_static: x {self.t[0]:.2f} "
-                    f"y {self.t[1]:.2f} z {self.t[2]:.2f}, roll {roll:.1f}° pitch {pitch:.1f}° yaw {yaw:.1f}° "
-                    "(laser.dynamic_frame, laser.extrinsic)")
+            return (
+                f"lidar on a moving mount: {frames}: {self.base_frame} -> {self.dynamic_frame} from /tf at each "
+                f"scan's stamp, {self.dynamic_frame} -> {self.scan_frame} from /tf_static: x {self.t[0]:.2f} "
+                f"y {self.t[1]:.2f} z {self.t[2]:.2f}, roll {roll:.1f}° pitch {pitch:.1f}° yaw {yaw:.1f}° "
+                "(laser.dynamic_frame, laser.extrinsic)"
+            )
         angles = f"yaw {yaw:.1f}°" if self.planar else f"roll {roll:.1f}° pitch {pitch:.1f}° yaw {yaw:.1f}°"
-        how = ("planar: filter.sensor_offset_*" if self.planar else
-               "3D: laser.extrinsic, " + ("upside down, a mirrored scan" if self.rot[2, 2] < -1 + 1e-6
-                                          else "tilted, projected"))
-        return (f"lidar mount from {self.source}: {frames}: x {self.t[0]:.2f} y {self.t[1]:.2f} z {self.t[2]:.2f}, "
-                f"{angles} ({how})")
+        how = (
+            "planar: filter.sensor_offset_*"
+            if self.planar
+            else "3D: laser.extrinsic, "
+            + ("upside down, a mirrored scan" if self.rot[2, 2] < -1 + 1e-6 else "tilted, projected")
+        )
+        return (
+            f"lidar mount from {self.source}: {frames}: x {self.t[0]:.2f} y {self.t[1]:.2f} z {self.t[2]:.2f}, "
+            f"{angles} ({how})"
+        )
 
 
 def _tf_static_tree(sample: BagSample, topics: dict) -> tuple[dict[str, tuple[str, np.ndarray, np.ndarray]], list[str]]:
@@ -144,8 +162,14 @@ def _compose_up(tree: dict, chain: list[str]) -> tuple[np.ndarray, np.ndarray]:
     return rot, t
 
 
-def lidar_mount(bag: str | BagSample, info: dict, inputs: dict[str, str], scan_frame: str | None = None,
-                base_frame: str | None = None, odom_frame: str = "odom") -> LidarMount:
+def lidar_mount(
+    bag: str | BagSample,
+    info: dict,
+    inputs: dict[str, str],
+    scan_frame: str | None = None,
+    base_frame: str | None = None,
+    odom_frame: str = "odom",
+) -> LidarMount:
     """The lidar's mount from the bag's /tf_static: the scan's frame composed up the chain of
     static transforms to the robot's base frame (`base_frame` if given, else the child of
     `odom_frame` in the bag's /tf, else base_link), e.g. base_link -> shell_link -> rplidar_link.
@@ -169,20 +193,29 @@ def lidar_mount(bag: str | BagSample, info: dict, inputs: dict[str, str], scan_f
     tree, m.warnings = _tf_static_tree(sample, topics)
     if "/tf_static" not in topics:
         return m
-    return mount_in_tree(m, tree, inputs["scan"], odom_frame,
-                         dynamic_parent=lambda frame: _dynamic_parent(sample, topics, frame))
+    return mount_in_tree(
+        m, tree, inputs["scan"], odom_frame, dynamic_parent=lambda frame: _dynamic_parent(sample, topics, frame)
+    )
 
 
-def mount_in_tree(m: LidarMount, tree: dict, scan_topic: str, odom_frame: str = "odom",
-                  source: str = "/tf_static", dynamic_parent=None) -> LidarMount:
+def mount_in_tree(
+    m: LidarMount,
+    tree: dict,
+    scan_topic: str,
+    odom_frame: str = "odom",
+    source: str = "/tf_static",
+    dynamic_parent=None,
+) -> LidarMount:
     """`m` (its base_frame, scan_frame) completed from `tree` (child -> (parent, R, t): a bag's
     /tf_static, or what `pf-slam live` heard on /tf_static and /tf); `source` names where the
     transforms came from; `dynamic_parent(frame)`: the frame's parent on the moving /tf, if any
     (a lidar on a moving head)."""
     base, scan_frame, from_tf = m.base_frame, m.scan_frame, m.base_from_tf
     if not scan_frame:
-        m.warnings.append(f"{scan_topic}: scans have no header.frame_id: the lidar mount is not looked up "
-                          f"in {source}; the parameters' mount is used")
+        m.warnings.append(
+            f"{scan_topic}: scans have no header.frame_id: the lidar mount is not looked up "
+            f"in {source}; the parameters' mount is used"
+        )
         return m
     if scan_frame == base:
         m.source = source
@@ -190,20 +223,22 @@ def mount_in_tree(m: LidarMount, tree: dict, scan_topic: str, odom_frame: str = 
         return m
     if scan_frame not in tree:
         have = ", ".join(f"{p} -> {c}" for c, (p, _, _) in sorted(tree.items())) or "no transforms"
-        m.warnings.append(f"{source} has no transform to the scan's frame {scan_frame!r} (it has: {have}): "
-                          "the parameters' mount is used (filter.sensor_offset_*, laser.extrinsic; default: "
-                          f"the lidar at the origin of {base})")
+        m.warnings.append(
+            f"{source} has no transform to the scan's frame {scan_frame!r} (it has: {have}): "
+            "the parameters' mount is used (filter.sensor_offset_*, laser.extrinsic; default: "
+            f"the lidar at the origin of {base})"
+        )
         return m
     up = _up_chain(tree, scan_frame)
     if base in up:
-        up = up[:up.index(base) + 1]
+        up = up[: up.index(base) + 1]
         rot, t = _compose_up(tree, up)
     elif base in tree and (common := [f for f in _up_chain(tree, base) if f in up]):
         # the base hangs off the same tree (base_footprint -> base_link -> laser, base_link
         # the base): scan in base = inverse(base in the common ancestor) * scan in it
         anc = common[0]
-        up_s, up_b = up[:up.index(anc) + 1], _up_chain(tree, base)
-        up_b = up_b[:up_b.index(anc) + 1]
+        up_s, up_b = up[: up.index(anc) + 1], _up_chain(tree, base)
+        up_b = up_b[: up_b.index(anc) + 1]
         r_s, t_s = _compose_up(tree, up_s)
         r_b, t_b = _compose_up(tree, up_b)
         rot, t = r_b.T @ r_s, r_b.T @ (t_s - t_b)
@@ -215,9 +250,11 @@ def mount_in_tree(m: LidarMount, tree: dict, scan_topic: str, odom_frame: str = 
         up = up + [base]
     else:
         rot, t = _compose_up(tree, up)
-        m.warnings.append(f"{source}: the scan's frame {scan_frame!r} hangs off {up[-1]!r}, not the robot's base "
-                          f"frame {base!r} ({'child of ' + odom_frame + ' in /tf' if from_tf else 'base_frame'}): "
-                          f"the mount is taken relative to {up[-1]!r}")
+        m.warnings.append(
+            f"{source}: the scan's frame {scan_frame!r} hangs off {up[-1]!r}, not the robot's base "
+            f"frame {base!r} ({'child of ' + odom_frame + ' in /tf' if from_tf else 'base_frame'}): "
+            f"the mount is taken relative to {up[-1]!r}"
+        )
     m.source, m.rot, m.t, m.chain = source, rot, t, list(reversed(up))
     return m
 
@@ -231,14 +268,19 @@ def _mount_report(mount: LidarMount, detected: dict, user: list[dict], node_name
     if not given:
         if mount.source == "/tf_static":
             return mount.describe(), notes
-        text = "lidar mount from the parameters (the bag has " + (
-            "no /tf_static" if not notes else "no mount for it in /tf_static") + "): the lidar at the origin of " + mount.base_frame
+        text = (
+            "lidar mount from the parameters (the bag has "
+            + ("no /tf_static" if not notes else "no mount for it in /tf_static")
+            + "): the lidar at the origin of "
+            + mount.base_frame
+        )
         return text, notes
     for k in MOUNT_PARAMS:
         detected.get("/**", {}).pop(k, None)
     merged = node_params(user, "correlator")
-    text = "lidar mount from the parameters: " + ", ".join(f"{k} {merged.get(k, given[k])}" for k in MOUNT_PARAMS
-                                                           if k in given)
+    text = "lidar mount from the parameters: " + ", ".join(
+        f"{k} {merged.get(k, given[k])}" for k in MOUNT_PARAMS if k in given
+    )
     if mount.source == "/tf_static":
         notes.append(f"the parameters' lidar mount replaces the bag's ({mount.describe()})")
     return text, notes

@@ -1,4 +1,5 @@
 """What `pf-slam run` writes: the output folder, map, trajectory, snapshots, texture, summary.json."""
+
 from __future__ import annotations
 
 import contextlib
@@ -62,6 +63,7 @@ def _stage_split(nodes, wall_s: float, scans: int) -> dict[str, float]:
     recorder). The texture node works on its own thread, in parallel: not part of this split
     (its ms per frame is in the texture summary)."""
     from ..core.stages import stage_seconds
+
     seconds = stage_seconds(*[n.stage for n in nodes if hasattr(n, "stage")])[0]
     seconds["messaging"] = wall_s - sum(seconds.values())
     return {k: round(1e3 * v / max(scans, 1), 3) for k, v in seconds.items()}
@@ -71,8 +73,8 @@ def _write_outputs(out: Path, rec: _Recorder, texture: bool, texture_out) -> dic
     """map (if one arrived), trajectory (the scans posed so far), final snapshot and texture;
     returns the summary entries they add. Also what a stopped run leaves behind."""
     from ..ros import convert
-    write_tum(out / "trajectory.tum", np.array(rec.stamps, dtype=np.int64) / 1e9,
-              np.array(rec.poses).reshape(-1, 3))
+
+    write_tum(out / "trajectory.tum", np.array(rec.stamps, dtype=np.int64) / 1e9, np.array(rec.poses).reshape(-1, 3))
     if rec.map_msg is None:
         return {"map": None}
     occ, res, origin = convert.msg_to_grid(rec.map_msg)
@@ -81,12 +83,12 @@ def _write_outputs(out: Path, rec: _Recorder, texture: bool, texture_out) -> dic
     return {"texture": _write_texture(out, rec, texture_out, occ, res, origin)} if texture else {}
 
 
-def _write_texture(out: Path, rec: _Recorder, rendered, occ: np.ndarray, res: float,
-                   origin) -> dict:
+def _write_texture(out: Path, rec: _Recorder, rendered, occ: np.ndarray, res: float, origin) -> dict:
     """texture.png (+ texture_overlay.png with the occupancy when the geometries agree) and the
     texture node's counters for summary.json."""
     from ..io.texture_files import write_texture_pngs
     from ..nodes.texture import image_array
+
     rgb = covered = None
     same_geometry = False
     if rendered is not None:  # one process: rendered here in the final /map geometry
@@ -96,11 +98,14 @@ def _write_texture(out: Path, rec: _Recorder, rendered, occ: np.ndarray, res: fl
         rgb = np.array(image_array(rec.texture_msg))
         covered = rgb.any(axis=2)
         m = rec.texture_meta
-        same_geometry = (m is not None and rgb.shape[:2] == occ.shape
-                         and (int(m.height), int(m.width)) == occ.shape
-                         and abs(m.resolution - res) < 1e-9
-                         and abs(m.origin.position.x - origin[0]) < 1e-6
-                         and abs(m.origin.position.y - origin[1]) < 1e-6)
+        same_geometry = (
+            m is not None
+            and rgb.shape[:2] == occ.shape
+            and (int(m.height), int(m.width)) == occ.shape
+            and abs(m.resolution - res) < 1e-9
+            and abs(m.origin.position.x - origin[0]) < 1e-6
+            and abs(m.origin.position.y - origin[1]) < 1e-6
+        )
     files: list[str] = []
     if rgb is not None:
         files = [p.name for p in write_texture_pngs(out, rgb, covered, occ if same_geometry else None)]
@@ -115,16 +120,23 @@ def build_summary(plan: RunPlan, dom: RosDomain, done: GraphOutcome, extra: dict
     """summary.json: the run's counts, timings, faults, inputs, profile, mount and domain;
     `extra`: what _write_outputs added."""
     bag, bag_duration_s, info, inputs = plan.bag, plan.bag_duration_s, plan.info, plan.inputs
-    scans_total, per_node, processes, rate, executor = (plan.scans_total, plan.per_node, plan.processes, plan.rate,
-                                                        plan.executor)
+    scans_total, per_node, processes, rate, executor = (
+        plan.scans_total,
+        plan.per_node,
+        plan.processes,
+        plan.rate,
+        plan.executor,
+    )
     checks, prof, mount_text, mount_notes = plan.checks, plan.prof, plan.mount_text, plan.mount_notes
     rec, result, stage_split, wall, stopped_by = done.rec, done.result, done.stage_split, done.wall, done.stopped_by
     covered_s = bag_duration_s  # a stopped run: the real-time factor of the part it processed
     if stopped_by is not None:
         covered_s = (rec.stamps[-1] - info["start_ns"]) / 1e9 if rec.stamps else 0.0
     scans_published = (rec.replay_counts or {}).get(inputs["scan"])  # None: the replay did not finish
-    peak = max(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
-               resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss) / 1024.0
+    peak = (
+        max(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)
+        / 1024.0
+    )
     summary = {
         "bag": str(bag),
         "bag_duration_s": round(bag_duration_s, 3),
@@ -142,8 +154,11 @@ def build_summary(plan: RunPlan, dom: RosDomain, done: GraphOutcome, extra: dict
         "peak_rss_mb": round(peak, 1),
         "snapshots_written": rec.snapshots_written,
         "snapshots_skipped": rec.snapshots_skipped,
-        "faults": {**(f := rec.faults()), "timestamps_fixed": len(checks["timestamps"]),
-                   "odom_sync_fallback": f.get("odom_sync_fallback", 0) + int("requested" in checks["odom_sync"])},
+        "faults": {
+            **(f := rec.faults()),
+            "timestamps_fixed": len(checks["timestamps"]),
+            "odom_sync_fallback": f.get("odom_sync_fallback", 0) + int("requested" in checks["odom_sync"]),
+        },
         "odom_sync": checks["odom_sync"],
         **({"timestamps": checks["timestamps"]} if checks["timestamps"] else {}),
         **({"gyro": gyro} if (gyro := rec.node_status.get("predictor", {}).get("gyro")) else {}),

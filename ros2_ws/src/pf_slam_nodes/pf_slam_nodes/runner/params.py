@@ -1,10 +1,12 @@
 """Parameter layering of `pf-slam run`: parameter files, their names and values checked before
 anything starts, the layers merged per node."""
+
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import yaml
 
@@ -70,6 +72,7 @@ def check_names(path: Path, section: str, key: str, flat: dict[str, Any]) -> Non
     nearest declared one. (ROS itself ignores undeclared overrides: a typo would silently
     leave the default.)"""
     from ..nodes.declared import RUN_KEYS_PREFIXES, declared, declared_by, nearest
+
     by = declared_by()
     for name in flat:
         if key == "/**":
@@ -77,14 +80,23 @@ def check_names(path: Path, section: str, key: str, flat: dict[str, Any]) -> Non
             if name in by or name in run_keys:
                 continue
             known = run_keys if name.startswith(RUN_KEYS_PREFIXES) else list(by) + run_keys
-            where = ("the inputs are " + ", ".join(INPUT_TYPES)) if name.startswith(RUN_KEYS_PREFIXES) \
+            where = (
+                ("the inputs are " + ", ".join(INPUT_TYPES))
+                if name.startswith(RUN_KEYS_PREFIXES)
                 else "no node declares it"
+            )
         else:
             if name in declared(key):
                 continue
             known = list(declared(key))
-            where = (f"{key} does not declare it (declared by {', '.join(by[name])}: put it in that "
-                     "section or under '/**')") if name in by else f"{key} does not declare it"
+            where = (
+                (
+                    f"{key} does not declare it (declared by {', '.join(by[name])}: put it in that "
+                    "section or under '/**')"
+                )
+                if name in by
+                else f"{key} does not declare it"
+            )
         near = nearest(name, known)
         hint = f"; nearest known: '{near}'" if near else ""
         raise RunError(f"{path}: section {section!r}: unknown parameter '{name}' ({where}){hint}")
@@ -101,6 +113,7 @@ def check_node_values(per_node: dict[str, dict[str, Any]], labelled: list[tuple[
     where that layer's values come from."""
     from ..nodes.bag_replay import parse_rate
     from ..nodes.declared import check_values
+
     for node, params in per_node.items():
         bad = check_values(node, params)
         if bad is None and node == "bag_replay":
@@ -140,4 +153,5 @@ def params_topics(layer: dict[str, dict[str, Any]]) -> dict[str, str]:
 
 def _default_particles() -> int:
     from ..core.config import FilterConfig
+
     return FilterConfig().num_particles

@@ -1,5 +1,6 @@
 """The recorder nodes of `pf-slam run`: the run's own (poses, map, snapshots, progress, the
 nodes' status) and the result recorder (result.mcap)."""
+
 from __future__ import annotations
 
 import json
@@ -19,13 +20,23 @@ from ..ros import cdr
 class _Recorder:
     """Collects per-scan poses and the latest /map; renders snapshots; prints progress."""
 
-    def __init__(self, node, out_dir: Path, scans_total: int, bag_duration_s: float,
-                 snapshot_every: int, progress: bool, texture: bool = False) -> None:
+    def __init__(
+        self,
+        node,
+        out_dir: Path,
+        scans_total: int,
+        bag_duration_s: float,
+        snapshot_every: int,
+        progress: bool,
+        texture: bool = False,
+    ) -> None:
         from geometry_msgs.msg import PoseStamped
         from nav_msgs.msg import OccupancyGrid
+
         from pf_slam_interfaces.msg import ParticleArray, ReplayStatus
 
         from ..ros import qos, topics
+
         self.node = node
         self.out_dir = out_dir
         self.scans_total = scans_total
@@ -50,12 +61,14 @@ class _Recorder:
         #: more consumers of the raw /pose bytes (the result recorder): one subscription, one
         #: delivery per pose at the car's 100 Hz instead of one per consumer
         self.pose_listeners: list = []
-        self.pose_subscription = node.create_subscription(PoseStamped, topics.POSE, self._on_pose, qos.pipeline(),
-                                                          raw=True)
+        self.pose_subscription = node.create_subscription(
+            PoseStamped, topics.POSE, self._on_pose, qos.pipeline(), raw=True
+        )
         node.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         node.create_subscription(OccupancyGrid, topics.MAP, self._on_map, qos.latched())
         node.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
         from std_msgs.msg import String
+
         node.create_subscription(String, topics.STATUS, self._on_node_status, qos.latched(depth=10))
         if texture:
             from nav_msgs.msg import MapMetaData
@@ -63,6 +76,7 @@ class _Recorder:
             from std_msgs.msg import String
 
             from ..nodes.texture import TEXTURE, TEXTURE_METADATA, TEXTURE_STATUS
+
             node.create_subscription(Image, TEXTURE, self._on_texture, qos.latched())
             node.create_subscription(MapMetaData, TEXTURE_METADATA, self._on_texture_meta, qos.latched())
             node.create_subscription(String, TEXTURE_STATUS, self._on_texture_status, qos.latched())
@@ -134,6 +148,7 @@ class _Recorder:
 
     def _write_snapshot(self, map_msg, poses: list, path: Path, title: str) -> None:
         from ..ros import convert
+
         try:
             occ, res, origin = convert.msg_to_grid(map_msg)
             traj = np.array(poses)[:, :2] if poses else np.zeros((0, 2))
@@ -172,14 +187,22 @@ class ResultRecorder:
 
     NAME = "pf_slam_result_recorder"
 
-    def __init__(self, node, path: Path, scan_topic: str, map_every_s: float, texture: bool = False,
-                 pose_feed: "_Recorder | None" = None) -> None:
+    def __init__(
+        self,
+        node,
+        path: Path,
+        scan_topic: str,
+        map_every_s: float,
+        texture: bool = False,
+        pose_feed: _Recorder | None = None,
+    ) -> None:
         """``pose_feed``: take /pose from that recorder's subscription instead of a second one."""
         from rclpy.qos import QoSProfile
 
         from ..io.bag import open_writer
         from ..nodes.common import announce_when_matched
         from ..ros import qos, topics
+
         self.path = path
         self._bag_dir = path.with_suffix(".bag_tmp")
         if self._bag_dir.exists():
@@ -196,9 +219,11 @@ class ResultRecorder:
             ("/" + topics.PATH, "nav_msgs/msg/Path", qos.outputs(10), 1),
             (topics.TF, "tf2_msgs/msg/TFMessage", qos.outputs(10000), 2),  # mapper + predictor or the bag
             (topics.TF_STATIC, "tf2_msgs/msg/TFMessage", qos.latched(10), 0),
-            ("/" + topics.MAP, "nav_msgs/msg/OccupancyGrid", qos.latched(), 0)]
+            ("/" + topics.MAP, "nav_msgs/msg/OccupancyGrid", qos.latched(), 0),
+        ]
         if texture:
             from ..nodes.texture import TEXTURE
+
             streams.append(("/" + TEXTURE, "sensor_msgs/msg/Image", qos.latched(), 0))
         needs = []
         for topic, msgtype, profile, wait in streams:
@@ -213,6 +238,7 @@ class ResultRecorder:
 
     def _writer_for(self, topic: str, msgtype: str):
         from ..ros import convert
+
         stamp_of = cdr.tf_message_stamp if msgtype == "tf2_msgs/msg/TFMessage" else convert.stamp_ns_from_cdr
 
         def write(raw: bytes) -> None:
@@ -220,12 +246,14 @@ class ResultRecorder:
             if stamp is not None:
                 self.last_stamp = stamp
             self.bag.write_raw(topic, self.last_stamp if stamp is None else stamp, raw)
+
         return write
 
     def _on_map(self, raw: bytes) -> None:
         """A map at most every map_every_ns of bag time (a car map is megabytes); the final one
         is written by finish()."""
         from ..ros import convert
+
         stamp = convert.stamp_ns_from_cdr(raw)
         if stamp == 0:  # a fixed map (localization) published before any scan: its later copies carry stamps
             return
@@ -241,6 +269,7 @@ class ResultRecorder:
         """Write the final map (if not yet in the file), close, and leave a single result.mcap."""
         if final_map is not None:
             from rclpy.serialization import serialize_message
+
             stamp = stamp_ns_of(final_map)
             if self.last_map_ns != stamp:
                 self.bag.write_raw("/map", stamp, serialize_message(final_map))
@@ -259,6 +288,7 @@ class ResultRecorder:
 
 def _message_class(msgtype: str):
     from ..nodes.bag_replay import message_class
+
     return message_class(msgtype)
 
 

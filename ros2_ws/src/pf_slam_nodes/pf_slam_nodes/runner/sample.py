@@ -7,6 +7,7 @@ pass over those topics collects them all and stops as soon as each is complete: 
 message count is known from the bag's metadata, so a bag whose static transforms come first (as
 recorders write them) is read only as far as its first `max_scans` scans.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -23,6 +24,7 @@ class BagSample:
 
     ``error``: the damage met during the pass (what precedes it is held); ``scans_wanted``: the
     scan count it read up to (fewer when the bag has fewer)."""
+
     path: str
     scan_topic: str
     odom_topic: str | None

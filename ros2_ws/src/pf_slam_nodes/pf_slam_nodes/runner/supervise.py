@@ -1,5 +1,6 @@
 """Process supervision of `pf-slam run`: the executor, the nodes in this process or one process
 per node, stop signals, the children's exits, stale shared memory."""
+
 from __future__ import annotations
 
 import contextlib
@@ -25,7 +26,6 @@ from .outputs import _OutDir, _stage_split
 from .params import unflatten
 from .recorder import ResultRecorder, _drain_result, _Recorder
 
-
 #: the signals that stop a run early (partial outputs written) -> the exit code of `pf-slam run`
 STOP_SIGNALS = {"SIGINT": 130, "SIGTERM": 143}
 
@@ -34,8 +34,10 @@ def make_executor(kind: str, context):
     """'events': rclpy's C++ EventsExecutor (rclpy.experimental, much less Python per callback);
     'single': the classic SingleThreadedExecutor. The graph's result does not depend on it."""
     from rclpy.executors import SingleThreadedExecutor
+
     if kind == "events":
         from rclpy.experimental import EventsExecutor
+
         return EventsExecutor(context=context)
     if kind == "single":
         return SingleThreadedExecutor(context=context)
@@ -49,6 +51,7 @@ def _make_node(name: str, context, overrides: dict[str, Any], remaps: dict[str, 
     from ..nodes.correlator import Correlator
     from ..nodes.mapper import Mapper
     from ..nodes.predictor import Predictor
+
     if name == "texture":
         from ..nodes.texture import TextureNode as cls
     else:
@@ -75,8 +78,10 @@ def _catch_stop_signals(stop: list[str]):
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    old = {sig: signal.signal(getattr(signal, sig), lambda num, _frame: stop.append(signal.Signals(num).name))
-           for sig in STOP_SIGNALS}
+    old = {
+        sig: signal.signal(getattr(signal, sig), lambda num, _frame: stop.append(signal.Signals(num).name))
+        for sig in STOP_SIGNALS
+    }
     try:
         yield
     finally:
@@ -143,8 +148,13 @@ def remove_stale_shm(shm: Path = Path("/dev/shm"), min_age_s: float = 2.0) -> li
     return removed
 
 
-def _spawn(per_node: dict[str, dict[str, Any]], dom: RosDomain, out: Path,
-           remaps: dict[str, str] | None = None, follow_clock: bool = False) -> dict[str, subprocess.Popen]:
+def _spawn(
+    per_node: dict[str, dict[str, Any]],
+    dom: RosDomain,
+    out: Path,
+    remaps: dict[str, str] | None = None,
+    follow_clock: bool = False,
+) -> dict[str, subprocess.Popen]:
     """Start one process per node, each with its own parameter file, in their own session: a
     Ctrl-C in the terminal reaches only this process, which stops them in order. They also
     die with it (PF_SLAM_PARENT_PID, see nodes.common.run_node), so none is left orphaned.
@@ -165,13 +175,19 @@ def _spawn(per_node: dict[str, dict[str, Any]], dom: RosDomain, out: Path,
             procs[name] = subprocess.Popen(
                 [sys.executable, "-m", f"pf_slam_nodes.nodes.{name}", "--ros-args", "--params-file", str(pfile)]
                 + (_remap_args(remaps) or [])[1:],
-                env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True, pass_fds=keep)
+                env=env,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+                pass_fds=keep,
+            )
     return procs
 
 
 @dataclass
 class GraphOutcome:
     """What spinning the graph leaves for the outputs."""
+
     rec: _Recorder
     result: ResultRecorder | None
     texture_out: Any  # the texture rendered in the final /map geometry (one process), or None
@@ -180,26 +196,35 @@ class GraphOutcome:
     stopped_by: str | None
 
 
-def spin_graph(plan: RunPlan, dom: RosDomain, out: Path, out_dir_: _OutDir,
-               domain_scope: contextlib.ExitStack) -> GraphOutcome:
+def spin_graph(
+    plan: RunPlan, dom: RosDomain, out: Path, out_dir_: _OutDir, domain_scope: contextlib.ExitStack
+) -> GraphOutcome:
     """Build the graph (its nodes in this process, or one process per node) with the recorders,
     spin it until it is done, stopped (a signal, a node gone, no progress) or fails, and take it
     down. A graph that failed before it started removes what the run created in --out
     (RunError); the domain's lock is released here."""
     import rclpy
+
     executor, processes, node_names, per_node = plan.executor, plan.processes, plan.node_names, plan.per_node
     scans_total, bag_duration_s, inputs, texture = plan.scans_total, plan.bag_duration_s, plan.inputs, plan.texture
-    snapshot_every, progress, record, record_map_every_s = (plan.snapshot_every, plan.progress, plan.record,
-                                                             plan.record_map_every_s)
-    idle_timeout_s, drain_timeout_s, texture_timeout_s = (plan.idle_timeout_s, plan.drain_timeout_s,
-                                                          plan.texture_timeout_s)
+    snapshot_every, progress, record, record_map_every_s = (
+        plan.snapshot_every,
+        plan.progress,
+        plan.record,
+        plan.record_map_every_s,
+    )
+    idle_timeout_s, drain_timeout_s, texture_timeout_s = (
+        plan.idle_timeout_s,
+        plan.drain_timeout_s,
+        plan.texture_timeout_s,
+    )
     remaps = topic_remaps(inputs)
     ctx = None
     children: dict[str, subprocess.Popen] = {}
     stop_signal: list[str] = []  # set by SIGINT / SIGTERM while the graph runs
     result: ResultRecorder | None = None
     nodes = []  # every node of this process, destroyed at the end: a node left alive keeps its
-    ex = None   # DDS readers matched by later runs on the same domain (ghost subscribers)
+    ex = None  # DDS readers matched by later runs on the same domain (ghost subscribers)
     t_start = time.monotonic()
     started = [False]  # the graph is up (its nodes built): from then on a failure keeps outputs
     early: list[str] = []  # why the graph failed to start (--out is then removed)
@@ -210,9 +235,14 @@ def spin_graph(plan: RunPlan, dom: RosDomain, out: Path, out_dir_: _OutDir,
         ex.add_node(rec_node)
         rec = _Recorder(rec_node, out, scans_total, bag_duration_s, snapshot_every, progress, texture)
         if record:
-            result = ResultRecorder(rec_node, out / "result.mcap", inputs["scan"],
-                                    record_map_every_s if record_map_every_s is not None else bag_duration_s / 20,
-                                    texture, pose_feed=rec)
+            result = ResultRecorder(
+                rec_node,
+                out / "result.mcap",
+                inputs["scan"],
+                record_map_every_s if record_map_every_s is not None else bag_duration_s / 20,
+                texture,
+                pose_feed=rec,
+            )
         texture_node = None
         if processes == "single":
             for name in node_names:
@@ -236,12 +266,18 @@ def spin_graph(plan: RunPlan, dom: RosDomain, out: Path, out_dir_: _OutDir,
                 if expected == 0:
                     return True
             if len(rec.poses) >= expected:  # and the predictor's final fault counts are here
-                return (m is not None and stamp_ns_of(m) == rec.stamps[-1]
-                        and rec.node_status.get("predictor", {}).get("final", False))
+                return (
+                    m is not None
+                    and stamp_ns_of(m) == rec.stamps[-1]
+                    and rec.node_status.get("predictor", {}).get("final", False)
+                )
             # paced replays (--rate N) may lose scans under load: once the bag is out and the
             # pipeline has been idle for drain_timeout_s, finish and report them as dropped
-            return (rec.replay_counts is not None and m is not None
-                    and time.monotonic() - state["last_progress"] > drain_timeout_s)
+            return (
+                rec.replay_counts is not None
+                and m is not None
+                and time.monotonic() - state["last_progress"] > drain_timeout_s
+            )
 
         def check() -> None:
             """Every 50 ms: done? stopped by a signal? a child process gone? stuck? -> resolve
@@ -259,22 +295,29 @@ def spin_graph(plan: RunPlan, dom: RosDomain, out: Path, out_dir_: _OutDir,
             for name, c in children.items():
                 if c.poll() is not None:
                     if not started[0]:  # e.g. a parameter it refused: nothing was processed
-                        early.append(f"node {name} {_exit_text(c.returncode)} before the first scan: "
-                                     f"{_last_line(out / 'logs' / f'{name}.log')}")
+                        early.append(
+                            f"node {name} {_exit_text(c.returncode)} before the first scan: "
+                            f"{_last_line(out / 'logs' / f'{name}.log')}"
+                        )
                     outcome.set_result(f"node {name} {_exit_text(c.returncode)}; log: {out / 'logs' / name}.log")
                     return
             if time.monotonic() - state["last_progress"] > idle_timeout_s:
-                outcome.set_result(f"no progress for {idle_timeout_s:.0f} s: "
-                                   f"{len(rec.poses)}/{scans_total} scans processed")
+                outcome.set_result(
+                    f"no progress for {idle_timeout_s:.0f} s: {len(rec.poses)}/{scans_total} scans processed"
+                )
             elif finished():
                 slam_done.setdefault("t", time.monotonic())
                 # the texture node finishes on its own after the last pair (it may skip pairs
                 # under load, never holds the SLAM nodes back); wait for its final texture
-                if (not texture or (rec.texture_status or {}).get("final")
-                        or time.monotonic() - slam_done["t"] > texture_timeout_s):
+                if (
+                    not texture
+                    or (rec.texture_status or {}).get("final")
+                    or time.monotonic() - slam_done["t"] > texture_timeout_s
+                ):
                     outcome.set_result(None)
 
         from rclpy.task import Future
+
         outcome = Future()
         rec_node.create_timer(0.05, check)
         with _catch_stop_signals(stop_signal):

@@ -1,4 +1,5 @@
 """Benchmarks behind `pf-slam bench` (see the README's Results section)."""
+
 from __future__ import annotations
 
 import math
@@ -17,8 +18,10 @@ def stage_cells(row: dict) -> str:
 
 def stage_table(rows: list[dict], labels: tuple[str, ...]) -> str:
     """Markdown table: the ``labels`` columns of each row, then its ms per scan in each stage."""
-    lines = ["| " + " | ".join(labels) + " | " + " | ".join(f"{k} ms" for k in STAGE_COLUMNS) + " |",
-             "|" + "---|" * len(labels) + "---:|" * len(STAGE_COLUMNS)]
+    lines = [
+        "| " + " | ".join(labels) + " | " + " | ".join(f"{k} ms" for k in STAGE_COLUMNS) + " |",
+        "|" + "---|" * len(labels) + "---:|" * len(STAGE_COLUMNS),
+    ]
     for r in rows:
         lines.append("| " + " | ".join(str(r[k]) for k in labels) + " | " + stage_cells(r) + " |")
     return "\n".join(lines)

@@ -20,11 +20,11 @@ perfect odometry). This back end runs on the filter's corrected poses and scans:
 
 Pure numpy + OpenCV (distance transform of the submap).
 """
+
 from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Optional
 
 import cv2
 import numpy as np
@@ -115,8 +115,9 @@ def _grid(center: np.ndarray, half_xy: float, step_xy: float, half_th: float, st
     return center + np.stack([gx.ravel(), gy.ravel(), gt.ravel()], 1)
 
 
-def match_loop(scan: np.ndarray, guess: np.ndarray, submap: _Submap, cfg: LoopConfig
-               ) -> Optional[tuple[np.ndarray, float]]:
+def match_loop(
+    scan: np.ndarray, guess: np.ndarray, submap: _Submap, cfg: LoopConfig
+) -> tuple[np.ndarray, float] | None:
     """Best world pose of ``scan`` (robot-frame points) near ``guess`` in ``submap``, with its
     score; None when it is too weak or ambiguous."""
     pts = scan[::2] if len(scan) > 120 else scan
@@ -168,7 +169,7 @@ def optimise(nodes: np.ndarray, edges: list, cfg: LoopConfig) -> np.ndarray:
             w = 1.0
             if robust:
                 chi2 = float(e @ info @ e)
-                w = 1.0 / (1.0 + chi2 / cfg.cauchy_c ** 2)
+                w = 1.0 / (1.0 + chi2 / cfg.cauchy_c**2)
             om = w * info
             si, sj = slice(3 * i, 3 * i + 3), slice(3 * j, 3 * j + 3)
             h[si, si] += a.T @ om @ a
@@ -188,9 +189,9 @@ def optimise(nodes: np.ndarray, edges: list, cfg: LoopConfig) -> np.ndarray:
 
 @dataclasses.dataclass
 class LoopResult:
-    poses: np.ndarray          # (K, 3) every pose, moved with its keyframe
-    keyframes: np.ndarray      # keyframe indices
-    loops: list                # (i, j, z, score) accepted loop edges (keyframe numbers)
+    poses: np.ndarray  # (K, 3) every pose, moved with its keyframe
+    keyframes: np.ndarray  # keyframe indices
+    loops: list  # (i, j, z, score) accepted loop edges (keyframe numbers)
 
 
 def close_loops(poses: np.ndarray, scans: list, cfg: LoopConfig = LoopConfig()) -> LoopResult:
@@ -211,9 +212,9 @@ def close_loops(poses: np.ndarray, scans: list, cfg: LoopConfig = LoopConfig()) 
         d = math.hypot(z[0], z[1])
         sxy = cfg.odom_sigma_xy_m + cfg.odom_sigma_xy_per_m * d
         sth = cfg.odom_sigma_rad + cfg.odom_sigma_rad_per_m * d
-        edges.append((a, a + 1, z, np.diag([1 / sxy ** 2, 1 / sxy ** 2, 1 / sth ** 2]), False))
+        edges.append((a, a + 1, z, np.diag([1 / sxy**2, 1 / sxy**2, 1 / sth**2]), False))
     loops = []
-    info_loop = np.diag([1 / cfg.loop_sigma_xy_m ** 2] * 2 + [1 / cfg.loop_sigma_rad ** 2])
+    info_loop = np.diag([1 / cfg.loop_sigma_xy_m**2] * 2 + [1 / cfg.loop_sigma_rad**2])
     for a in range(0, len(kf), cfg.loop_every):
         if len(pts[a]) < 20:
             continue
@@ -234,7 +235,7 @@ def close_loops(poses: np.ndarray, scans: list, cfg: LoopConfig = LoopConfig()) 
         if m is None:
             continue
         pose, score = m
-        z = relative_pose(kp[b], pose)   # measured pose of a in b's frame (b's pose as the filter has it)
+        z = relative_pose(kp[b], pose)  # measured pose of a in b's frame (b's pose as the filter has it)
         edges.append((b, a, z, info_loop, True))
         loops.append((a, b, z, score))
     if not loops:

@@ -11,6 +11,7 @@ factor with its ratio to the replay-only ceiling of the same bag (images include
 images: the pairs textured, the texture's colour error and coverage against the simulator's
 floor and the texture node's time per pair by stage.
 """
+
 from __future__ import annotations
 
 import json
@@ -24,9 +25,9 @@ from pf_slam_nodes.core import metrics
 from pf_slam_nodes.core.odometry import GyroBuffer, WheelOdometryIntegrator
 from pf_slam_nodes.io.calib import parse_encoder_params
 from pf_slam_nodes.io.trajectory import read_trajectory, write_tum
-from . import stage_table
-
 from pf_slam_nodes.profiles import CONFIG_DIR  # noqa: E402  (the runtime package's config/)
+
+from . import stage_table
 
 KAIST_YAML = CONFIG_DIR / "kaist.yaml"
 
@@ -35,15 +36,24 @@ def odometry_streams(dataset_dir: str | Path) -> dict:
     """The drive's encoder and FOG CSVs and encoder parameters, read once: ``enc`` (K, 3) int64
     (stamp, left, right counts), ``fog_t`` (F,) int64 ns, ``fog_yaw`` (F,) rad, ``params``."""
     d = Path(dataset_dir)
-    fog = np.loadtxt(d / "sensor_data" / "fog.csv", delimiter=",", usecols=(0, 3), ndmin=1,
-                     dtype={"names": ("t", "yaw"), "formats": ("i8", "f8")})
-    return {"enc": np.loadtxt(d / "sensor_data" / "encoder.csv", delimiter=",", dtype=np.int64, ndmin=2),
-            "fog_t": fog["t"], "fog_yaw": fog["yaw"],
-            "params": parse_encoder_params(d / "param" / "EncoderParameter.txt")}
+    fog = np.loadtxt(
+        d / "sensor_data" / "fog.csv",
+        delimiter=",",
+        usecols=(0, 3),
+        ndmin=1,
+        dtype={"names": ("t", "yaw"), "formats": ("i8", "f8")},
+    )
+    return {
+        "enc": np.loadtxt(d / "sensor_data" / "encoder.csv", delimiter=",", dtype=np.int64, ndmin=2),
+        "fog_t": fog["t"],
+        "fog_yaw": fog["yaw"],
+        "params": parse_encoder_params(d / "param" / "EncoderParameter.txt"),
+    }
 
 
-def dead_reckoning(dataset_dir: str | Path, gyro_rest_bias: bool = False,
-                   streams: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+def dead_reckoning(
+    dataset_dir: str | Path, gyro_rest_bias: bool = False, streams: dict | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Encoders + FOG integrated exactly as the predictor does (no noise, no scans); with
     ``gyro_rest_bias``, the FOG's bias calibrated at standstill (the predictor's
     ``wheels.gyro_rest_bias``), else the raw sensors (the baseline of the car targets).
@@ -55,8 +65,9 @@ def dead_reckoning(dataset_dir: str | Path, gyro_rest_bias: bool = False,
     enc, p = s["enc"], s["params"]
     gyro = GyroBuffer()
     gyro.add(s["fog_t"], s["fog_yaw"])
-    wheels = WheelOdometryIntegrator(p["left_wheel_diameter_m"], p["right_wheel_diameter_m"], p["wheel_base_m"],
-                                     gyro_rest_bias=gyro_rest_bias)
+    wheels = WheelOdometryIntegrator(
+        p["left_wheel_diameter_m"], p["right_wheel_diameter_m"], p["wheel_base_m"], gyro_rest_bias=gyro_rest_bias
+    )
     k = 2.0 * math.pi / p["resolution"]
     poses, prev = np.empty((enc.shape[0], 3)), None
     for i, (t, left, right) in enumerate(enc):
@@ -108,8 +119,7 @@ def _simulated(data: Path, seed: int, duration_s: float, world: int | None, ster
     has_pairs = left.is_dir() and any(left.glob("*.png"))
     if (data / "ground_truth" / "poses.csv").is_file() and (has_pairs or stereo_rate_hz == 0):
         return
-    simulate_car(data, seed=seed, duration_s=duration_s, stereo_rate_hz=stereo_rate_hz, overwrite=True,
-                 world=world)
+    simulate_car(data, seed=seed, duration_s=duration_s, stereo_rate_hz=stereo_rate_hz, overwrite=True, world=world)
 
 
 def texture_score(run_dir: Path, data: Path) -> dict:
@@ -141,15 +151,16 @@ def texture_score(run_dir: Path, data: Path) -> dict:
             gi = np.clip(np.floor((xs + dx - gorig[0]) / gres).astype(int), 0, gt.shape[1] - 1)
             gj = np.clip(np.floor((ys + dy - gorig[1]) / gres).astype(int), 0, gt.shape[0] - 1)
             acc += gt[gj[:, None], gi[None, :]]
-    gt_cells = np.rint(acc / off.size ** 2).astype(np.uint8)
+    gt_cells = np.rint(acc / off.size**2).astype(np.uint8)
     rig = read_stereo_rig(data / "param")
     stamps = sorted(int(p.stem) for p in (data / "stereo_images" / "stereo_left").glob("*.png"))
     t_gt, p_gt = read_trajectory(data / "ground_truth" / "poses.csv")
     poses = interpolate_poses(t_gt, p_gt, np.array(stamps, dtype=np.float64) / 1e9)
     poses = poses[np.isfinite(poses).all(axis=1)]
     cfg = TextureConfig()
-    vis = visible_ground_mask(poses, rig, cfg, res, origin, (h, w),
-                              rectified_here=False)  # the simulator renders rectified images
+    vis = visible_ground_mask(
+        poses, rig, cfg, res, origin, (h, w), rectified_here=False
+    )  # the simulator renders rectified images
     go, gr, gorig2 = read_map(data / "ground_truth" / "occupancy.yaml")
     oi = np.clip(((xs - gorig2[0]) / gr).astype(int), 0, go.shape[1] - 1)
     oj = np.clip(((ys - gorig2[1]) / gr).astype(int), 0, go.shape[0] - 1)
@@ -158,17 +169,25 @@ def texture_score(run_dir: Path, data: Path) -> dict:
     return {"colour_error": sc["mean_abs_rgb_error"], "coverage": sc["coverage"], "cells": sc["cells_coloured"]}
 
 
-def bench(out_dir: Path, seeds=(0,), duration_s: float = 300.0, processes: str = "single",
-          particles: int | None = None, params_file: str | None = None,
-          filter_seeds: tuple[int, ...] = (0,), images: bool = True,
-          worlds: tuple[int | None, ...] = (None,), stereo_rate_hz: float = 1.0) -> list[dict]:
+def bench(
+    out_dir: Path,
+    seeds=(0,),
+    duration_s: float = 300.0,
+    processes: str = "single",
+    particles: int | None = None,
+    params_file: str | None = None,
+    filter_seeds: tuple[int, ...] = (0,),
+    images: bool = True,
+    worlds: tuple[int | None, ...] = (None,),
+    stereo_rate_hz: float = 1.0,
+) -> list[dict]:
     """One row per drive (simulator ``seeds``) and filter seed (``filter_seeds``: the filter's
     random stream, ``filter.seed``). The filter is chaotic on these drives (README), so the
     settings are judged on several of each. Dead reckoning, the ceiling and the ground truth are
     computed once per drive."""
-    from pf_slam_tools.bench.ceiling import replay_ceiling
     from pf_slam_nodes.graph import run
     from pf_slam_nodes.io.mapfile import read_map
+    from pf_slam_tools.bench.ceiling import replay_ceiling
 
     rows = []
     for seed, world in [(s, w) for w in worlds for s in seeds]:
@@ -190,8 +209,16 @@ def bench(out_dir: Path, seeds=(0,), duration_s: float = 300.0, processes: str =
             node = {"filter.seed": int(fseed)}
             if particles:
                 node["filter.num_particles"] = particles
-            res = run(str(bag), run_dir, params_file=params_file or str(KAIST_YAML), processes=processes,
-                      overrides={"/**": node}, progress=False, snapshot_every=0, texture=images)
+            res = run(
+                str(bag),
+                run_dir,
+                params_file=params_file or str(KAIST_YAML),
+                processes=processes,
+                overrides={"/**": node},
+                progress=False,
+                snapshot_every=0,
+                texture=images,
+            )
             write_tum(run_dir / "dead_reckoning.tum", t_dr / 1e9, p_dr)
             write_tum(run_dir / "dead_reckoning_rest_bias.tum", t_dc / 1e9, p_dc)
             t_est, p_est = read_trajectory(run_dir / "trajectory.tum")
@@ -200,23 +227,41 @@ def bench(out_dir: Path, seeds=(0,), duration_s: float = 300.0, processes: str =
             s = res.summary
             tex = s.get("texture") or {}
             score = texture_score(run_dir, data) if images and tex.get("files") else {}
-            rows.append({
-                "seed": seed, "world": world, "filter_seed": int(fseed), "images": images,
-                "pairs": tex.get("frames_received", 0), "pairs_textured": tex.get("frames_processed", 0),
-                "pairs_skipped": tex.get("frames_skipped", 0), "texture_ms_per_pair": tex.get("ms_per_frame"),
-                "texture_ms_stages": tex.get("ms_stages"), "colour_error": score.get("colour_error"),
-                "coverage": score.get("coverage"), "duration_s": s["bag_duration_s"],
-                "processes": processes,
-                "particles": s["particles"], "scans": s["scans_processed"], "dropped": s["scans_dropped"],
-                "corrected": s["scans_corrected"], "ate_m": _ate(t_est, p_est, t_gt, p_gt),
-                "dr_ate_m": dr_ate, "dr_rest_bias_ate_m": dr_rest_bias_ate,
-                "gyro_bias_rad_s": s.get("gyro", {}).get("bias_rad_s"), "true_gyro_bias_rad_s": true_bias,
-                "map_f1": f1["f1"],
-                "map_precision": f1["precision"], "map_recall": f1["recall"],
-                "wall_s": s["wall_time_s"], "rtf": s["real_time_factor"],
-                "ceiling_rtf": ceiling["real_time_factor"],
-                "ratio_to_ceiling": round(s["real_time_factor"] / ceiling["real_time_factor"], 3),
-                "peak_rss_mb": s["peak_rss_mb"], "stage_ms_per_scan": s.get("stage_ms_per_scan")})
+            rows.append(
+                {
+                    "seed": seed,
+                    "world": world,
+                    "filter_seed": int(fseed),
+                    "images": images,
+                    "pairs": tex.get("frames_received", 0),
+                    "pairs_textured": tex.get("frames_processed", 0),
+                    "pairs_skipped": tex.get("frames_skipped", 0),
+                    "texture_ms_per_pair": tex.get("ms_per_frame"),
+                    "texture_ms_stages": tex.get("ms_stages"),
+                    "colour_error": score.get("colour_error"),
+                    "coverage": score.get("coverage"),
+                    "duration_s": s["bag_duration_s"],
+                    "processes": processes,
+                    "particles": s["particles"],
+                    "scans": s["scans_processed"],
+                    "dropped": s["scans_dropped"],
+                    "corrected": s["scans_corrected"],
+                    "ate_m": _ate(t_est, p_est, t_gt, p_gt),
+                    "dr_ate_m": dr_ate,
+                    "dr_rest_bias_ate_m": dr_rest_bias_ate,
+                    "gyro_bias_rad_s": s.get("gyro", {}).get("bias_rad_s"),
+                    "true_gyro_bias_rad_s": true_bias,
+                    "map_f1": f1["f1"],
+                    "map_precision": f1["precision"],
+                    "map_recall": f1["recall"],
+                    "wall_s": s["wall_time_s"],
+                    "rtf": s["real_time_factor"],
+                    "ceiling_rtf": ceiling["real_time_factor"],
+                    "ratio_to_ceiling": round(s["real_time_factor"] / ceiling["real_time_factor"], 3),
+                    "peak_rss_mb": s["peak_rss_mb"],
+                    "stage_ms_per_scan": s.get("stage_ms_per_scan"),
+                }
+            )
     return rows
 
 
@@ -226,11 +271,13 @@ def targets_line(rows: list[dict], ate_max_m: float = 0.35, better_by: float = 3
     ate = np.array([r["ate_m"] for r in rows])
     ok = sum(r["ate_m"] <= ate_max_m and r["dr_ate_m"] >= better_by * r["ate_m"] for r in rows)
     fast = sum(r["rtf"] >= rtf_min for r in rows)
-    return (f"{len(rows)} runs: ATE mean {ate.mean():.3f} m, median {np.median(ate):.3f} m, worst "
-            f"{ate.max():.3f} m; ATE <= {ate_max_m} m and >= {better_by:g}x below raw dead reckoning in "
-            f"{ok} of {len(rows)}; >= {rtf_min:g}x real time in {fast} of {len(rows)} "
-            f"(RTF {min(r['rtf'] for r in rows):.1f}-{max(r['rtf'] for r in rows):.1f}x); "
-            f"dropped {sum(r['dropped'] for r in rows)}" + _texture_targets(rows))
+    return (
+        f"{len(rows)} runs: ATE mean {ate.mean():.3f} m, median {np.median(ate):.3f} m, worst "
+        f"{ate.max():.3f} m; ATE <= {ate_max_m} m and >= {better_by:g}x below raw dead reckoning in "
+        f"{ok} of {len(rows)}; >= {rtf_min:g}x real time in {fast} of {len(rows)} "
+        f"(RTF {min(r['rtf'] for r in rows):.1f}-{max(r['rtf'] for r in rows):.1f}x); "
+        f"dropped {sum(r['dropped'] for r in rows)}" + _texture_targets(rows)
+    )
 
 
 def _texture_targets(rows: list[dict], error_max: float = 12.0) -> str:
@@ -240,11 +287,15 @@ def _texture_targets(rows: list[dict], error_max: float = 12.0) -> str:
         return ""
     err = [r["colour_error"] for r in tex if r.get("colour_error") is not None]
     cov = [r["coverage"] for r in tex if r.get("coverage") is not None]
-    out = (f"; stereo pairs textured {sum(r['pairs_textured'] for r in tex)} of {sum(r['pairs'] for r in tex)} "
-           f"({sum(r['pairs_skipped'] for r in tex)} skipped)")
+    out = (
+        f"; stereo pairs textured {sum(r['pairs_textured'] for r in tex)} of {sum(r['pairs'] for r in tex)} "
+        f"({sum(r['pairs_skipped'] for r in tex)} skipped)"
+    )
     if err:
-        out += (f"; texture colour error median {np.median(err):.1f}, worst {max(err):.1f} (<= {error_max:g} in "
-                f"{sum(e <= error_max for e in err)} of {len(err)})")
+        out += (
+            f"; texture colour error median {np.median(err):.1f}, worst {max(err):.1f} (<= {error_max:g} in "
+            f"{sum(e <= error_max for e in err)} of {len(err)})"
+        )
     if cov:
         out += f", coverage median {np.median(cov):.2f}"
     return out
@@ -257,6 +308,7 @@ def _world_text(r: dict) -> str:
 def _world_layouts(rows: list[dict]) -> str:
     """'world N: <variation>' lines of the worlds in ``rows``."""
     from pf_slam_tools.sim.car_variation import CarVariation
+
     ws = sorted({r["world"] for r in rows if r.get("world") is not None})
     return "\n".join(f"- world {w}: {CarVariation.draw(w).describe()}" for w in ws)
 
@@ -269,16 +321,20 @@ def format_texture_table(rows: list[dict]) -> str:
     stages = []
     for r in tex:
         stages += [k for k in (r.get("texture_ms_stages") or {}) if k not in stages]
-    lines = ["| seed | world | filter seed | pairs | textured | skipped | colour error | coverage | ms / pair | "
-             + " | ".join(f"{k} ms" for k in stages) + " |",
-             "|---:|---:|---:|---:|---:|---:|---:|---:|---:|" + "---:|" * len(stages)]
+    lines = [
+        "| seed | world | filter seed | pairs | textured | skipped | colour error | coverage | ms / pair | "
+        + " | ".join(f"{k} ms" for k in stages)
+        + " |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|" + "---:|" * len(stages),
+    ]
     for r in tex:
         st = r.get("texture_ms_stages") or {}
         f = lambda v, fmt: "–" if v is None else format(v, fmt)  # noqa: E731
-        lines.append(f"| {r['seed']} | {_world_text(r)} | {r['filter_seed']} | {r['pairs']} | {r['pairs_textured']} | "
-                     f"{r['pairs_skipped']} | {f(r.get('colour_error'), '.1f')} | {f(r.get('coverage'), '.2f')} | "
-                     f"{f(r.get('texture_ms_per_pair'), '.0f')} | "
-                     + " | ".join(f(st.get(k), '.0f') for k in stages) + " |")
+        lines.append(
+            f"| {r['seed']} | {_world_text(r)} | {r['filter_seed']} | {r['pairs']} | {r['pairs_textured']} | "
+            f"{r['pairs_skipped']} | {f(r.get('colour_error'), '.1f')} | {f(r.get('coverage'), '.2f')} | "
+            f"{f(r.get('texture_ms_per_pair'), '.0f')} | " + " | ".join(f(st.get(k), ".0f") for k in stages) + " |"
+        )
     return "\n".join(lines)
 
 
@@ -289,6 +345,7 @@ def _true_fog_bias_rad_s(data: Path, t: np.ndarray) -> float | None:
     if not info.is_file():
         return None
     import yaml
+
     per_sample = yaml.safe_load(info.read_text()).get("fog_yaw_bias_rad_per_sample")
     return None if per_sample is None or t.size < 2 else float(per_sample) / (float(np.mean(np.diff(t))) / 1e9)
 
@@ -298,10 +355,12 @@ def _urad(v: float | None) -> str:
 
 
 def format_table(rows: list[dict]) -> str:
-    lines = ["| seed | world | filter seed | drive s | particles | processes | ATE m | dead reckoning ATE m | ratio | DR, FOG bias at "
-             "rest, ATE m | FOG bias est. / true µrad/s | map F1 (P / R) | wall s | RTF | replay-only RTF | "
-             "of ceiling | dropped |",
-             "|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|"]
+    lines = [
+        "| seed | world | filter seed | drive s | particles | processes | ATE m | dead reckoning ATE m | ratio | DR, FOG bias at "
+        "rest, ATE m | FOG bias est. / true µrad/s | map F1 (P / R) | wall s | RTF | replay-only RTF | "
+        "of ceiling | dropped |",
+        "|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|",
+    ]
     for r in rows:
         lines.append(
             f"| {r['seed']} | {_world_text(r)} | {r['filter_seed']} | {r['duration_s']:.0f} | {r['particles']} | {r['processes']} | {r['ate_m']:.3f} | "
@@ -309,27 +368,38 @@ def format_table(rows: list[dict]) -> str:
             f"{r['dr_rest_bias_ate_m']:.3f} | {_urad(r['gyro_bias_rad_s'])} / {_urad(r['true_gyro_bias_rad_s'])} | "
             f"{r['map_f1']:.3f} "
             f"({r['map_precision']:.2f} / {r['map_recall']:.2f}) | {r['wall_s']:.1f} | {r['rtf']:.1f}× | "
-            f"{r['ceiling_rtf']:.1f}× | {100 * r['ratio_to_ceiling']:.0f} % | {r['dropped']} |")
+            f"{r['ceiling_rtf']:.1f}× | {100 * r['ratio_to_ceiling']:.0f} % | {r['dropped']} |"
+        )
     return "\n".join(lines)
 
 
-def main(out_dir: str, seeds=(0,), duration_s: float = 300.0, processes: str = "single",
-         particles: int | None = None, filter_seeds: tuple[int, ...] = (0,), images: bool = True,
-         worlds: tuple[int | None, ...] = (None,)) -> str:
+def main(
+    out_dir: str,
+    seeds=(0,),
+    duration_s: float = 300.0,
+    processes: str = "single",
+    particles: int | None = None,
+    filter_seeds: tuple[int, ...] = (0,),
+    images: bool = True,
+    worlds: tuple[int | None, ...] = (None,),
+) -> str:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    rows = bench(out, seeds, duration_s, processes, particles, filter_seeds=filter_seeds, images=images,
-                 worlds=worlds)
+    rows = bench(out, seeds, duration_s, processes, particles, filter_seeds=filter_seeds, images=images, worlds=worlds)
     table = format_table(rows) + "\n\n" + targets_line(rows)
     if images:
-        table += ("\n\nStereo pairs through the texture node (1 Hz, `--rate max`: the replay paces on it), "
-                  "colour error / coverage vs the simulator's floor, texture ms per pair by stage:\n\n"
-                  + format_texture_table(rows))
+        table += (
+            "\n\nStereo pairs through the texture node (1 Hz, `--rate max`: the replay paces on it), "
+            "colour error / coverage vs the simulator's floor, texture ms per pair by stage:\n\n"
+            + format_texture_table(rows)
+        )
     if any(r.get("world") is not None for r in rows):
         table += "\n\nWorlds (`pf-slam simulate --world N`, not tuned on):\n\n" + _world_layouts(rows)
     if processes == "single":
-        table += ("\n\nTime per scan by stage (ms; with images, the texture worker's share of the CPU shows "
-                  "in messaging):\n\n" + stage_table(rows, ("seed", "world", "filter_seed", "particles")))
+        table += (
+            "\n\nTime per scan by stage (ms; with images, the texture worker's share of the CPU shows "
+            "in messaging):\n\n" + stage_table(rows, ("seed", "world", "filter_seed", "particles"))
+        )
     tag = f"car_{processes}" + ("" if images else "_noimages") + ("_worlds" if worlds != (None,) else "")
     (out / f"{tag}.md").write_text(table + "\n")
     (out / f"{tag}.json").write_text(json.dumps(rows, indent=2) + "\n")

@@ -6,14 +6,16 @@ the indoor profile, config/carmen_indoor.yaml, the same for every log), and eval
 Kümmerle relations and/or GMapping's reference poses. Prints a markdown table and writes it
 (and the raw numbers as JSON) into the output folder.
 """
+
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
-from pf_slam_nodes.io.evaluation import evaluate
 from pf_slam_nodes.graph import run
 from pf_slam_nodes.io.convert import convert_carmen
+from pf_slam_nodes.io.evaluation import evaluate
+
 from . import stage_table
 
 CARMEN_YAML = Path(__file__).resolve().parents[2] / "config" / "carmen_indoor.yaml"
@@ -35,30 +37,56 @@ def carmen_bag(data_dir: Path, out_dir: Path, name: str) -> Path:
     return bag
 
 
-def bench(data_dir: Path, out_dir: Path, names=tuple(DATASETS), seeds=(0,), processes: str = "single",
-          params_file: str | None = None) -> list[dict]:
+def bench(
+    data_dir: Path,
+    out_dir: Path,
+    names=tuple(DATASETS),
+    seeds=(0,),
+    processes: str = "single",
+    params_file: str | None = None,
+) -> list[dict]:
     rows = []
     for name in names:
         _, rel, ref = DATASETS[name]
         bag = carmen_bag(data_dir, out_dir, name)
         from .ceiling import replay_ceiling
+
         ceiling = replay_ceiling(str(bag))["real_time_factor"]
         for seed in seeds:
             run_dir = out_dir / f"{name}_seed{seed}_{processes}"
-            res = run(str(bag), run_dir, params_file=params_file, processes=processes,
-                      overrides={"/**": {"filter.seed": seed}}, progress=False, snapshot_every=0)
-            ev = evaluate(run_dir / "trajectory.tum",
-                          data_dir / "carmen" / ref if ref else None,
-                          relations_path=data_dir / "carmen" / rel if rel else None, max_dt=1e-3)
-            row = {"dataset": name, "seed": seed, "processes": processes, **res.summary,
-                   "profile": res.summary["profile"]["name"],
-                   "ceiling_rtf": ceiling,
-                   "ratio_to_ceiling": round(res.summary["real_time_factor"] / ceiling, 5)}
+            res = run(
+                str(bag),
+                run_dir,
+                params_file=params_file,
+                processes=processes,
+                overrides={"/**": {"filter.seed": seed}},
+                progress=False,
+                snapshot_every=0,
+            )
+            ev = evaluate(
+                run_dir / "trajectory.tum",
+                data_dir / "carmen" / ref if ref else None,
+                relations_path=data_dir / "carmen" / rel if rel else None,
+                max_dt=1e-3,
+            )
+            row = {
+                "dataset": name,
+                "seed": seed,
+                "processes": processes,
+                **res.summary,
+                "profile": res.summary["profile"]["name"],
+                "ceiling_rtf": ceiling,
+                "ratio_to_ceiling": round(res.summary["real_time_factor"] / ceiling, 5),
+            }
             if "relations" in ev:
                 r = ev["relations"]
-                row.update(rel_trans_mean=r["trans_mean"], rel_trans_std=r["trans_std"],
-                           rel_rot_mean_deg=r["rot_mean_deg"], rel_rot_std_deg=r["rot_std_deg"],
-                           rel_used=f"{r['n_used']}/{r['n_total']}")
+                row.update(
+                    rel_trans_mean=r["trans_mean"],
+                    rel_trans_std=r["trans_std"],
+                    rel_rot_mean_deg=r["rot_mean_deg"],
+                    rel_rot_std_deg=r["rot_std_deg"],
+                    rel_used=f"{r['n_used']}/{r['n_total']}",
+                )
             if "ate" in ev:
                 row.update(ate_vs_reference_rmse=ev["ate"]["rmse"], ate_n=ev["n_associated"])
             rows.append(row)
@@ -66,17 +94,22 @@ def bench(data_dir: Path, out_dir: Path, names=tuple(DATASETS), seeds=(0,), proc
 
 
 def format_table(rows: list[dict]) -> str:
-    lines = ["| dataset | seed | scans | wall s | RTF | relations trans (m) | relations rot (deg) | "
-             "ATE vs GMapping ref (m) | peak RSS MB | replay-only RTF | of ceiling |",
-             "|---|---:|---:|---:|---:|---|---|---:|---:|---:|---:|"]
+    lines = [
+        "| dataset | seed | scans | wall s | RTF | relations trans (m) | relations rot (deg) | "
+        "ATE vs GMapping ref (m) | peak RSS MB | replay-only RTF | of ceiling |",
+        "|---|---:|---:|---:|---:|---|---|---:|---:|---:|---:|",
+    ]
     for r in rows:
-        rel_t = (f"{r['rel_trans_mean']:.3f} ± {r['rel_trans_std']:.3f} ({r['rel_used']})"
-                 if "rel_trans_mean" in r else "–")
+        rel_t = (
+            f"{r['rel_trans_mean']:.3f} ± {r['rel_trans_std']:.3f} ({r['rel_used']})" if "rel_trans_mean" in r else "–"
+        )
         rel_r = f"{r['rel_rot_mean_deg']:.2f} ± {r['rel_rot_std_deg']:.2f}" if "rel_trans_mean" in r else "–"
         ate = f"{r['ate_vs_reference_rmse']:.3f}" if "ate_vs_reference_rmse" in r else "–"
-        lines.append(f"| {r['dataset']} | {r['seed']} | {r['scans_processed']} | {r['wall_time_s']:.1f} | "
-                     f"{r['real_time_factor']:.0f}× | {rel_t} | {rel_r} | {ate} | {r['peak_rss_mb']:.0f} | "
-                     f"{r['ceiling_rtf']:.0f}× | {100 * r['ratio_to_ceiling']:.1f} % |")
+        lines.append(
+            f"| {r['dataset']} | {r['seed']} | {r['scans_processed']} | {r['wall_time_s']:.1f} | "
+            f"{r['real_time_factor']:.0f}× | {rel_t} | {rel_r} | {ate} | {r['peak_rss_mb']:.0f} | "
+            f"{r['ceiling_rtf']:.0f}× | {100 * r['ratio_to_ceiling']:.1f} % |"
+        )
     return "\n".join(lines)
 
 
@@ -96,8 +129,10 @@ def targets_lines(rows: list[dict]) -> str:
         text = f"{name}: {len(rs)} runs, wall {min(walls):.1f}-{max(walls):.1f} s"
         if "rel_trans_mean" in rs[0]:
             rel = [r["rel_trans_mean"] for r in rs]
-            text += (f"; relations {sum(rel) / len(rel):.3f} m on average, median {sorted(rel)[(len(rel) - 1) // 2]:.3f} m, "
-                     f"worst run {max(rel):.3f} m")
+            text += (
+                f"; relations {sum(rel) / len(rel):.3f} m on average, median {sorted(rel)[(len(rel) - 1) // 2]:.3f} m, "
+                f"worst run {max(rel):.3f} m"
+            )
             rel_max, wall_max = TARGETS.get(name, (None, None))
             if rel_max is not None:
                 text += f"; <= {rel_max} m in {sum(v <= rel_max for v in rel)} of {len(rs)}"
@@ -105,8 +140,9 @@ def targets_lines(rows: list[dict]) -> str:
                 text += f"; wall <= {wall_max:g} s in {sum(w <= wall_max for w in walls)} of {len(rs)}"
         if "ate_vs_reference_rmse" in rs[0]:
             ate = [r["ate_vs_reference_rmse"] for r in rs]
-            text += (f"; ATE vs GMapping {min(ate):.3f}-{max(ate):.3f} m, median "
-                     f"{sorted(ate)[(len(ate) - 1) // 2]:.3f} m")
+            text += (
+                f"; ATE vs GMapping {min(ate):.3f}-{max(ate):.3f} m, median {sorted(ate)[(len(ate) - 1) // 2]:.3f} m"
+            )
         out.append(text)
     return "\n".join(out)
 

@@ -10,6 +10,7 @@ stereo images gets a fourth sink standing in for the texture node: it takes both
 reports each left image finished at once on pf_slam/texture_progress, which the replay paces the
 images on as in the real run.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -22,19 +23,19 @@ def _sink_class():
     from geometry_msgs.msg import PoseStamped
     from rclpy.node import Node
     from rclpy.serialization import serialize_message
+    from std_msgs.msg import UInt32MultiArray
 
     from pf_slam_nodes.nodes.bag_replay import message_class
     from pf_slam_nodes.nodes.common import announce_when_matched
-    from std_msgs.msg import UInt32MultiArray
-
     from pf_slam_nodes.ros import qos, topics
 
     class CountingSink(Node):
         """Subscribes to `subscribe` (topic -> type name) raw and counts; optionally answers
         every scan with a pose."""
 
-        def __init__(self, name: str, subscribe: dict[str, str], echo_pose: bool, context,
-                     progress_on: str = "") -> None:
+        def __init__(
+            self, name: str, subscribe: dict[str, str], echo_pose: bool, context, progress_on: str = ""
+        ) -> None:
             super().__init__(name, context=context)
             self.counts = {t: 0 for t in subscribe}
             self.pose_raw = serialize_message(PoseStamped())
@@ -56,6 +57,7 @@ def _sink_class():
                 self.counts[topic] += 1
                 if topic == self.progress_on:
                     self.pub_progress.publish(UInt32MultiArray(data=[self.counts[topic], 0]))
+
             return cb
 
         def _scan(self, _raw: bytes) -> None:
@@ -65,8 +67,7 @@ def _sink_class():
     return CountingSink
 
 
-def replay_ceiling(bag: str, executor: str = "events", domain_id: int | None = None,
-                   timeout_s: float = 600.0) -> dict:
+def replay_ceiling(bag: str, executor: str = "events", domain_id: int | None = None, timeout_s: float = 600.0) -> dict:
     """Replay `bag` at max into counting sinks in one process; returns wall time, RTF, counts.
     On an isolated domain (ros.domain.ros_context) unless `domain_id` / ROS_DOMAIN_ID names one."""
     from rclpy.parameter import Parameter
@@ -88,15 +89,21 @@ def replay_ceiling(bag: str, executor: str = "events", domain_id: int | None = N
     try:
         ex = make_executor(executor, ctx)
         Sink = _sink_class()
-        sinks = [Sink("predictor", {**scan, **odom}, True, ctx), Sink("correlator", scan, False, ctx),
-                 Sink("mapper", scan, False, ctx)]
+        sinks = [
+            Sink("predictor", {**scan, **odom}, True, ctx),
+            Sink("correlator", scan, False, ctx),
+            Sink("mapper", scan, False, ctx),
+        ]
         extra = []
         if left in images:
             sinks.append(Sink("texture", images, False, ctx, progress_on=left))
-            extra = [Parameter("image_topic", value=left),
-                     Parameter("wait_for", value=["predictor", "correlator", "mapper", "texture"])]
-        replay = BagReplay(context=ctx, parameter_overrides=[Parameter("bag", value=str(bag)),
-                                                             Parameter("rate", value="max"), *extra])
+            extra = [
+                Parameter("image_topic", value=left),
+                Parameter("wait_for", value=["predictor", "correlator", "mapper", "texture"]),
+            ]
+        replay = BagReplay(
+            context=ctx, parameter_overrides=[Parameter("bag", value=str(bag)), Parameter("rate", value="max"), *extra]
+        )
         nodes = [*sinks, replay]
         for n in nodes:
             ex.add_node(n)
@@ -104,8 +111,11 @@ def replay_ceiling(bag: str, executor: str = "events", domain_id: int | None = N
         while not replay.started:
             ex.spin_once(timeout_sec=0.05)
         t0 = time.monotonic()
-        while not (replay.done and sinks[0].counts.get("/scan", 0) >= expected.get("/scan", 0)
-                   and all(sinks[0].counts[t] >= expected[t] for t in sinks[0].counts)):
+        while not (
+            replay.done
+            and sinks[0].counts.get("/scan", 0) >= expected.get("/scan", 0)
+            and all(sinks[0].counts[t] >= expected[t] for t in sinks[0].counts)
+        ):
             ex.spin_once(timeout_sec=0.05)
             if time.monotonic() - t0 > timeout_s:
                 raise TimeoutError(f"replay-only run of {bag} did not finish in {timeout_s:.0f} s")
@@ -118,8 +128,13 @@ def replay_ceiling(bag: str, executor: str = "events", domain_id: int | None = N
             n.destroy_node()
         domain_scope.close()
     dur = info["duration_ns"] / 1e9
-    return {"bag": str(bag), "bag_duration_s": round(dur, 3), "wall_time_s": round(wall, 3),
-            "real_time_factor": round(dur / wall, 2) if wall > 0 else None,
-            "messages": sum(expected.values()), "received_by_predictor_sink": dict(received),
-            "images": sum(expected.get(t, 0) for t in images),
-            "executor": executor}
+    return {
+        "bag": str(bag),
+        "bag_duration_s": round(dur, 3),
+        "wall_time_s": round(wall, 3),
+        "real_time_factor": round(dur / wall, 2) if wall > 0 else None,
+        "messages": sum(expected.values()),
+        "received_by_predictor_sink": dict(received),
+        "images": sum(expected.get(t, 0) for t in images),
+        "executor": executor,
+    }

@@ -4,6 +4,7 @@ Measures the cost of publish + receive (build the message from ndarrays, publish
 convert back to ndarrays) between two nodes under one SingleThreadedExecutor, for several
 particle counts. This is the measurement that fixed ParticleArray's layout (README).
 """
+
 from __future__ import annotations
 
 import array
@@ -14,21 +15,22 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 
 from pf_slam_interfaces.msg import Particle, ParticleArray, ParticleArrayNested
-
 from pf_slam_nodes.ros import convert, qos
 from pf_slam_nodes.ros.domain import ros_context
 
 
 def _soa_msg(poses: np.ndarray, lw: np.ndarray) -> ParticleArray:
-    return convert.particles_to_msg(poses, lw, stamp_ns=0, frame_id="map", scan_index=0,
-                                    update=True, odom_pose=np.zeros(3))
+    return convert.particles_to_msg(
+        poses, lw, stamp_ns=0, frame_id="map", scan_index=0, update=True, odom_pose=np.zeros(3)
+    )
 
 
 def _nested_msg(poses: np.ndarray, lw: np.ndarray) -> ParticleArrayNested:
     msg = ParticleArrayNested()
     msg.header.frame_id = "map"
-    msg.particles = [Particle(x=float(p[0]), y=float(p[1]), theta=float(p[2]), log_weight=float(w))
-                     for p, w in zip(poses, lw)]
+    msg.particles = [
+        Particle(x=float(p[0]), y=float(p[1]), theta=float(p[2]), log_weight=float(w)) for p, w in zip(poses, lw)
+    ]
     return msg
 
 
@@ -39,16 +41,18 @@ def _nested_back(msg: ParticleArrayNested) -> tuple[np.ndarray, np.ndarray]:
 
 def measure(n_particles: int, layout: str, repeats: int, context) -> float:
     """Mean seconds per message (build + publish + receive + convert back)."""
-    msg_type, build, back = ((ParticleArray, _soa_msg, convert.msg_to_particles) if layout == "soa"
-                             else (ParticleArrayNested, _nested_msg, _nested_back))
+    msg_type, build, back = (
+        (ParticleArray, _soa_msg, convert.msg_to_particles)
+        if layout == "soa"
+        else (ParticleArrayNested, _nested_msg, _nested_back)
+    )
     pub_node = rclpy.create_node("bench_pub", context=context)
     sub_node = rclpy.create_node("bench_sub", context=context)
     ex = SingleThreadedExecutor(context=context)
     ex.add_node(pub_node)
     ex.add_node(sub_node)
     received: list[int] = []
-    sub_node.create_subscription(msg_type, "bench", lambda m: received.append(len(back(m)[1])),
-                                 qos.pipeline())
+    sub_node.create_subscription(msg_type, "bench", lambda m: received.append(len(back(m)[1])), qos.pipeline())
     pub = pub_node.create_publisher(msg_type, "bench", qos.pipeline())
     deadline = time.monotonic() + 10
     while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
@@ -76,14 +80,12 @@ def run(counts=(100, 10_000), domain_id: int | None = None) -> list[dict]:
         for n in counts:
             for layout in ("soa", "nested"):
                 repeats = max(5, min(500, 200_000 // n))
-                rows.append({"particles": n, "layout": layout,
-                             "ms_per_msg": 1e3 * measure(n, layout, repeats, ctx)})
+                rows.append({"particles": n, "layout": layout, "ms_per_msg": 1e3 * measure(n, layout, repeats, ctx)})
     return rows
 
 
 def format_table(rows: list[dict]) -> str:
-    lines = ["| particles | struct-of-arrays (ms/msg) | nested Particle[] (ms/msg) | ratio |",
-             "|---:|---:|---:|---:|"]
+    lines = ["| particles | struct-of-arrays (ms/msg) | nested Particle[] (ms/msg) | ratio |", "|---:|---:|---:|---:|"]
     for n in sorted({r["particles"] for r in rows}):
         soa = next(r["ms_per_msg"] for r in rows if r["particles"] == n and r["layout"] == "soa")
         nes = next(r["ms_per_msg"] for r in rows if r["particles"] == n and r["layout"] == "nested")
@@ -105,6 +107,7 @@ def measure_fog(seconds: float = 10.0, batch: int = 10, domain_id: int | None = 
     from geometry_msgs.msg import Vector3Stamped
 
     from pf_slam_interfaces.msg import FogBatch
+
     n = int(seconds * 1000)
     stamps = (np.arange(n, dtype=np.int64) + 1) * 1_000_000
     dyaw = np.random.default_rng(0).normal(0, 1e-4, n)
@@ -118,8 +121,10 @@ def measure_fog(seconds: float = 10.0, batch: int = 10, domain_id: int | None = 
             ex.add_node(sub_node)
             got = [0]
             if layout == "vector3":
+
                 def cb(m, got=got):
                     got[0] += 1
+
                 sub_node.create_subscription(Vector3Stamped, "fog", cb, qos.pipeline(100000))
                 pub = pub_node.create_publisher(Vector3Stamped, "fog", qos.pipeline(100000))
                 msgs = []
@@ -129,18 +134,20 @@ def measure_fog(seconds: float = 10.0, batch: int = 10, domain_id: int | None = 
                     m.vector.z = float(d)
                     msgs.append(m)
             else:
+
                 def cb(m, got=got):
                     got[0] += len(m.stamps_ns)
+
                 sub_node.create_subscription(FogBatch, "fog", cb, qos.pipeline(10000))
                 pub = pub_node.create_publisher(FogBatch, "fog", qos.pipeline(10000))
                 msgs = []
                 for k in range(0, n, batch):
                     m = FogBatch()
                     m.header.stamp = convert.ns_to_stamp(int(stamps[k + batch - 1]))
-                    m.stamps_ns = array.array("q", stamps[k:k + batch].tobytes())
+                    m.stamps_ns = array.array("q", stamps[k : k + batch].tobytes())
                     m.delta_roll = array.array("d", bytes(8 * batch))
                     m.delta_pitch = array.array("d", bytes(8 * batch))
-                    m.delta_yaw = array.array("d", dyaw[k:k + batch].tobytes())
+                    m.delta_yaw = array.array("d", dyaw[k : k + batch].tobytes())
                     msgs.append(m)
             while pub.get_subscription_count() == 0:
                 ex.spin_once(timeout_sec=0.01)
@@ -148,7 +155,10 @@ def measure_fog(seconds: float = 10.0, batch: int = 10, domain_id: int | None = 
             for i, m in enumerate(msgs):
                 pub.publish(m)
                 if i % 100 == 99:
-                    while ex.spin_once(timeout_sec=0) is None and got[0] < (i + 1) * (1 if layout == "vector3" else batch) - 2000:
+                    while (
+                        ex.spin_once(timeout_sec=0) is None
+                        and got[0] < (i + 1) * (1 if layout == "vector3" else batch) - 2000
+                    ):
                         pass
             while got[0] < n:
                 ex.spin_once(timeout_sec=0.1)

@@ -5,6 +5,7 @@ bench's table with where it was measured: the machine (CPU model, cores, memory)
 line and the commit (``+ uncommitted changes`` when the tree was dirty). Nobody edits the
 numbers by hand; a bench run with ``--results FILE`` rewrites its section and leaves the rest.
 """
+
 from __future__ import annotations
 
 import datetime as _dt
@@ -39,36 +40,56 @@ def commit(repo: Path | None = None) -> str:
     """The checkout's commit ('abc1234' or 'abc1234 + uncommitted changes'), or 'unknown'."""
     cwd = str(repo or Path.cwd())
     try:
-        rev = subprocess.run(["git", "rev-parse", "--short=12", "HEAD"], cwd=cwd, capture_output=True,
-                             text=True, timeout=10, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=cwd,
-                               capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+        rev = subprocess.run(
+            ["git", "rev-parse", "--short=12", "HEAD"], cwd=cwd, capture_output=True, text=True, timeout=10, check=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=cwd,
+            capture_output=True,
+            text=True,
+            timeout=10,
+            check=True,
+        ).stdout.strip()
     except (OSError, subprocess.SubprocessError):
         return "unknown"
     return rev + (" + uncommitted changes" if dirty else "")
 
 
-def section(name: str, title: str, body: str, command: str | None = None, when: str | None = None,
-            where: str | None = None, rev: str | None = None) -> str:
+def section(
+    name: str,
+    title: str,
+    body: str,
+    command: str | None = None,
+    when: str | None = None,
+    where: str | None = None,
+    rev: str | None = None,
+) -> str:
     """One bench's section, with its markers and provenance line."""
     command = command or shlex.join(["pf-slam", *sys.argv[1:]])
-    when = when or _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    when = when or _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     where = where or machine()
     rev = rev or commit()
-    return (f"<!-- bench:{name} -->\n### {title}\n\n"
-            f"`{command}` on commit {rev}, {when}; machine: {where}.\n\n{body.rstrip()}\n"
-            f"<!-- /bench:{name} -->")
+    return (
+        f"<!-- bench:{name} -->\n### {title}\n\n"
+        f"`{command}` on commit {rev}, {when}; machine: {where}.\n\n{body.rstrip()}\n"
+        f"<!-- /bench:{name} -->"
+    )
 
 
 def update(path: str | os.PathLike, name: str, text: str) -> None:
     """Replace section `name` of the results file `path` with `text` (from section()), or append
     it; the file is created with a heading if it does not exist."""
     p = Path(path)
-    doc = p.read_text() if p.exists() else "# Results\n\nWritten by the benchmarks (`make bench`, `make bench-car`, `make bench-scaling`); each section names the machine, the command and the commit it was measured on.\n"
+    doc = (
+        p.read_text()
+        if p.exists()
+        else "# Results\n\nWritten by the benchmarks (`make bench`, `make bench-car`, `make bench-scaling`); each section names the machine, the command and the commit it was measured on.\n"
+    )
     start, end = f"<!-- bench:{name} -->", f"<!-- /bench:{name} -->"
     i, j = doc.find(start), doc.find(end)
     if i >= 0 and j > i:
-        doc = doc[:i] + text + doc[j + len(end):]
+        doc = doc[:i] + text + doc[j + len(end) :]
     else:
         doc = doc.rstrip("\n") + "\n\n" + text + "\n"
     p.write_text(doc)

@@ -8,6 +8,7 @@ the occupied-cell F1 of the map against the ground-truth map, the texture's mean
 against the true floor colour (0..255, over the cells the texture coloured), the scans skipped as
 mostly floor, and the real-time factor (the texture node running beside the SLAM).
 """
+
 from __future__ import annotations
 
 import json
@@ -30,6 +31,7 @@ def odometry_poses(bag: Path) -> tuple[np.ndarray, np.ndarray]:
     """The bag's /odom (the robot's own estimate): (stamps s (K,), poses (K, 3))."""
     from pf_slam_nodes.core.geometry import quat_to_yaw
     from pf_slam_nodes.io.bag import deserialize, read_bag, stamp_ns_of
+
     t, p = [], []
     for _, msgtype, _, raw in read_bag(bag, topics=["/odom"]):
         m = deserialize(raw, msgtype)
@@ -50,12 +52,13 @@ def texture_error(run_dir: Path, sim_dir: Path) -> dict:
     error (0..255) over the coloured cells that lie on the true floor grid."""
     from pf_slam_nodes.core.texture import colour_error
     from pf_slam_nodes.io.texture_files import read_floor_texture
+
     png = run_dir / "texture.png"
     if not png.is_file():
         return {"texture_error": float("nan"), "texture_cells": 0}
     rgb, res, origin = read_floor_texture(png, run_dir / "map.yaml")
     gt, gres, gorigin = read_floor_texture(sim_dir / "floor_colour.png", sim_dir / "floor_colour.yaml")
-    rows, cols = np.mgrid[0:rgb.shape[0], 0:rgb.shape[1]]
+    rows, cols = np.mgrid[0 : rgb.shape[0], 0 : rgb.shape[1]]
     gc = np.floor((origin[0] + (cols + 0.5) * res - gorigin[0]) / gres).astype(np.int64)
     gr = np.floor((origin[1] + (rows + 0.5) * res - gorigin[1]) / gres).astype(np.int64)
     inside = (gc >= 0) & (gc < gt.shape[1]) & (gr >= 0) & (gr < gt.shape[0])
@@ -63,20 +66,35 @@ def texture_error(run_dir: Path, sim_dir: Path) -> dict:
     truth[inside] = gt[gr[inside], gc[inside]]
     covered = rgb.any(axis=2) & inside
     err = colour_error(rgb, covered, truth)
-    return {"texture_error": err["mean_abs_rgb_error"], "texture_median_error": err["median_abs_rgb_error"],
-            "texture_cells": err["cells_coloured"]}
+    return {
+        "texture_error": err["mean_abs_rgb_error"],
+        "texture_median_error": err["median_abs_rgb_error"],
+        "texture_cells": err["cells_coloured"],
+    }
 
 
 def _bag(sim_dir: Path, bag: Path) -> Path:
     from pf_slam_nodes.io.thor import convert_thor
+
     if not (bag / "metadata.yaml").is_file():
-        convert_thor(sim_dir / "lidar.mat", sim_dir / "joint.mat", bag, rgb_path=sim_dir / "rgb.mat",
-                     depth_path=sim_dir / "depth.mat")
+        convert_thor(
+            sim_dir / "lidar.mat",
+            sim_dir / "joint.mat",
+            bag,
+            rgb_path=sim_dir / "rgb.mat",
+            depth_path=sim_dir / "depth.mat",
+        )
     return bag
 
 
-def bench(out_dir: Path, seeds=(0, 1, 2), duration_s: float = 60.0, filter_seeds=(0, 1),
-          kinect_rate_hz: float = 0.5, particles: int | None = None) -> list[dict]:
+def bench(
+    out_dir: Path,
+    seeds=(0, 1, 2),
+    duration_s: float = 60.0,
+    filter_seeds=(0, 1),
+    kinect_rate_hz: float = 0.5,
+    particles: int | None = None,
+) -> list[dict]:
     """One row per world (simulator ``seeds``) and filter seed."""
     from pf_slam_nodes.graph import run
     from pf_slam_nodes.io.mapfile import read_map
@@ -106,33 +124,51 @@ def bench(out_dir: Path, seeds=(0, 1, 2), duration_s: float = 60.0, filter_seeds
             eo, er, eorig = read_map(run_dir / "map.yaml")
             f1 = metrics.map_f1(eo, er, eorig[:2], go, gres, gorig[:2])
             tex = s.get("texture", {})
-            rows.append({
-                "seed": seed, "filter_seed": int(fseed), "duration_s": s["bag_duration_s"],
-                "particles": s["particles"], "scans": s["scans_processed"], "corrected": s["scans_corrected"],
-                "mostly_floor": s["faults"].get("scan_mostly_floor", 0),
-                "ate_m": ate_m(t_est, p_est, t_gt, p_gt), "odom_ate_m": odom_ate,
-                "map_f1": f1["f1"], "map_precision": f1["precision"], "map_recall": f1["recall"],
-                **texture_error(run_dir, sim_dir),
-                "rgbd_pairs": tex.get("frames_processed", 0), "rgbd_received": tex.get("frames_received", 0),
-                "plane_fits": tex.get("plane_fits", 0), "texture_ms": tex.get("ms_per_frame"),
-                "wall_s": s["wall_time_s"], "rtf": s["real_time_factor"], "ceiling_rtf": ceiling,
-                "dropped": s["scans_dropped"],
-                "peak_rss_mb": s["peak_rss_mb"], "stage_ms_per_scan": s.get("stage_ms_per_scan")})
+            rows.append(
+                {
+                    "seed": seed,
+                    "filter_seed": int(fseed),
+                    "duration_s": s["bag_duration_s"],
+                    "particles": s["particles"],
+                    "scans": s["scans_processed"],
+                    "corrected": s["scans_corrected"],
+                    "mostly_floor": s["faults"].get("scan_mostly_floor", 0),
+                    "ate_m": ate_m(t_est, p_est, t_gt, p_gt),
+                    "odom_ate_m": odom_ate,
+                    "map_f1": f1["f1"],
+                    "map_precision": f1["precision"],
+                    "map_recall": f1["recall"],
+                    **texture_error(run_dir, sim_dir),
+                    "rgbd_pairs": tex.get("frames_processed", 0),
+                    "rgbd_received": tex.get("frames_received", 0),
+                    "plane_fits": tex.get("plane_fits", 0),
+                    "texture_ms": tex.get("ms_per_frame"),
+                    "wall_s": s["wall_time_s"],
+                    "rtf": s["real_time_factor"],
+                    "ceiling_rtf": ceiling,
+                    "dropped": s["scans_dropped"],
+                    "peak_rss_mb": s["peak_rss_mb"],
+                    "stage_ms_per_scan": s.get("stage_ms_per_scan"),
+                }
+            )
     return rows
 
 
 def format_table(rows: list[dict]) -> str:
-    lines = ["| world | filter seed | walk s | particles | scans (corrected, mostly floor) | ATE m | odometry ATE m | "
-             "map F1 (P / R) | texture error | texture cells | RGB-D pairs (plane fits) | wall s | RTF | "
-             "replay-only RTF |",
-             "|---:|---:|---:|---:|---|---:|---:|---|---:|---:|---|---:|---:|---:|"]
+    lines = [
+        "| world | filter seed | walk s | particles | scans (corrected, mostly floor) | ATE m | odometry ATE m | "
+        "map F1 (P / R) | texture error | texture cells | RGB-D pairs (plane fits) | wall s | RTF | "
+        "replay-only RTF |",
+        "|---:|---:|---:|---:|---|---:|---:|---|---:|---:|---|---:|---:|---:|",
+    ]
     for r in rows:
         lines.append(
             f"| {r['seed']} | {r['filter_seed']} | {r['duration_s']:.0f} | {r['particles']} | {r['scans']} "
             f"({r['corrected']}, {r['mostly_floor']}) | {r['ate_m']:.3f} | {r['odom_ate_m']:.3f} | "
             f"{r['map_f1']:.3f} ({r['map_precision']:.2f} / {r['map_recall']:.2f}) | {r['texture_error']:.1f} | "
             f"{r['texture_cells']} | {r['rgbd_pairs']} of {r['rgbd_received']} ({r['plane_fits']}) | "
-            f"{r['wall_s']:.1f} | {r['rtf']:.1f}× | {r.get('ceiling_rtf', float('nan')):.1f}× |")
+            f"{r['wall_s']:.1f} | {r['rtf']:.1f}× | {r.get('ceiling_rtf', float('nan')):.1f}× |"
+        )
     return "\n".join(lines)
 
 
@@ -140,22 +176,30 @@ def targets_line(rows: list[dict]) -> str:
     ate = np.array([r["ate_m"] for r in rows])
     tex = np.array([r["texture_error"] for r in rows])
     rtf = np.array([r["rtf"] for r in rows])
-    return (f"{len(rows)} runs ({len({r['seed'] for r in rows})} worlds x {len({r['filter_seed'] for r in rows})} "
-            f"filter seeds): ATE mean {ate.mean():.3f} m, worst {ate.max():.3f} m, <= {ATE_MAX_M} m in "
-            f"{int((ate <= ATE_MAX_M).sum())} of {len(rows)}; texture error mean {np.nanmean(tex):.1f}, worst "
-            f"{np.nanmax(tex):.1f}, <= {TEXTURE_ERROR_MAX:g} in {int((tex <= TEXTURE_ERROR_MAX).sum())} of "
-            f"{len(rows)}; "
-            f"map F1 {min(r['map_f1'] for r in rows):.3f}-{max(r['map_f1'] for r in rows):.3f}; RTF "
-            f"{rtf.min():.1f}-{rtf.max():.1f}x, >= {RTF_MIN:g}x in {int((rtf >= RTF_MIN).sum())} of {len(rows)}")
+    return (
+        f"{len(rows)} runs ({len({r['seed'] for r in rows})} worlds x {len({r['filter_seed'] for r in rows})} "
+        f"filter seeds): ATE mean {ate.mean():.3f} m, worst {ate.max():.3f} m, <= {ATE_MAX_M} m in "
+        f"{int((ate <= ATE_MAX_M).sum())} of {len(rows)}; texture error mean {np.nanmean(tex):.1f}, worst "
+        f"{np.nanmax(tex):.1f}, <= {TEXTURE_ERROR_MAX:g} in {int((tex <= TEXTURE_ERROR_MAX).sum())} of "
+        f"{len(rows)}; "
+        f"map F1 {min(r['map_f1'] for r in rows):.3f}-{max(r['map_f1'] for r in rows):.3f}; RTF "
+        f"{rtf.min():.1f}-{rtf.max():.1f}x, >= {RTF_MIN:g}x in {int((rtf >= RTF_MIN).sum())} of {len(rows)}"
+    )
 
 
-def main(out_dir: str, seeds=(0, 1, 2), duration_s: float = 60.0, filter_seeds=(0, 1),
-         particles: int | None = None) -> str:
+def main(
+    out_dir: str, seeds=(0, 1, 2), duration_s: float = 60.0, filter_seeds=(0, 1), particles: int | None = None
+) -> str:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     rows = bench(out, tuple(seeds), duration_s, tuple(filter_seeds), particles=particles)
-    table = (format_table(rows) + "\n\n" + targets_line(rows) + "\n\nTime per scan by stage (ms):\n\n"
-             + stage_table(rows, ("seed", "filter_seed", "particles")))
+    table = (
+        format_table(rows)
+        + "\n\n"
+        + targets_line(rows)
+        + "\n\nTime per scan by stage (ms):\n\n"
+        + stage_table(rows, ("seed", "filter_seed", "particles"))
+    )
     (out / "thor.md").write_text(table + "\n")
     (out / "thor.json").write_text(json.dumps(rows, indent=2) + "\n")
     return table

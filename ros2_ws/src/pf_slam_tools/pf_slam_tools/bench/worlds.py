@@ -16,6 +16,7 @@ Kümmerle et al. (:func:`relations_from_truth`): mean translational error and th
 0.5 m. Per world: median and worst over the seeds. A seed ``s`` is filter seed ``s`` and
 odometry (or drive) seed ``s``: every seed is another drive of the same building.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -30,20 +31,20 @@ from pf_slam_nodes.core import config as cfg
 from pf_slam_nodes.core.geometry import compose
 from pf_slam_nodes.core.metrics import ate, relative_se2
 from pf_slam_nodes.core.slam import ParticleFilterSlam
-from pf_slam_nodes.runner.params import load_params, node_params
 from pf_slam_nodes.profiles import profile_file
+from pf_slam_nodes.runner.params import load_params, node_params
 
 #: the eight corrected-pose buildings (files in DATA/carmen_corrected)
 BUILDINGS = ("acapulco", "belgioioso", "edmonton", "fhw", "freiburg-101", "freiburg-campus", "orebro", "seattle")
 SIM_WORLDS = ("office", "corridors", "ring")
 
 #: synthesised odometry (per run, from the odometry seed): a scale error, a heading bias, noise
-ODOM_SCALE = (0.01, 0.03)            # |scale error| drawn in this range, random sign
+ODOM_SCALE = (0.01, 0.03)  # |scale error| drawn in this range, random sign
 ODOM_HEADING_BIAS_DEG_PER_M = (0.3, 1.0)  # |heading bias| drawn in this range, random sign
-ODOM_SIGMA_XY_PER_M = 0.02           # translation noise std per metre of the step (m/m)
-ODOM_SIGMA_XY_MIN_M = 0.005          # and per step (m)
-ODOM_SIGMA_TH_PER_RAD = 0.02         # rotation noise std per radian turned (rad/rad)
-ODOM_SIGMA_TH_PER_M = 0.005          # per metre travelled (rad/m)
+ODOM_SIGMA_XY_PER_M = 0.02  # translation noise std per metre of the step (m/m)
+ODOM_SIGMA_XY_MIN_M = 0.005  # and per step (m)
+ODOM_SIGMA_TH_PER_RAD = 0.02  # rotation noise std per radian turned (rad/rad)
+ODOM_SIGMA_TH_PER_M = 0.005  # per metre travelled (rad/m)
 
 
 def indoor_configs(seed: int, overrides: dict | None = None) -> tuple:
@@ -55,12 +56,21 @@ def indoor_configs(seed: int, overrides: dict | None = None) -> tuple:
 
     def section(cls, params, prefix):
         names = {f.name: f for f in dataclasses.fields(cls)}
-        vals = {k[len(prefix) + 1:]: v for k, v in params.items() if k.startswith(prefix + ".")}
-        return cls.from_dict({k: (float(v) if isinstance(names[k].default, float) and isinstance(v, int) else v)
-                              for k, v in vals.items()})
-    return (section(cfg.FilterConfig, corr, "filter"), section(cfg.OdometryMotionConfig, pred, "motion"),
-            section(cfg.GridConfig, corr, "grid"), section(cfg.CorrelationConfig, corr, "correlation"),
-            section(cfg.ResampleConfig, corr, "resample"))
+        vals = {k[len(prefix) + 1 :]: v for k, v in params.items() if k.startswith(prefix + ".")}
+        return cls.from_dict(
+            {
+                k: (float(v) if isinstance(names[k].default, float) and isinstance(v, int) else v)
+                for k, v in vals.items()
+            }
+        )
+
+    return (
+        section(cfg.FilterConfig, corr, "filter"),
+        section(cfg.OdometryMotionConfig, pred, "motion"),
+        section(cfg.GridConfig, corr, "grid"),
+        section(cfg.CorrelationConfig, corr, "correlation"),
+        section(cfg.ResampleConfig, corr, "resample"),
+    )
 
 
 def synthesise_odometry(truth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -77,8 +87,10 @@ def synthesise_odometry(truth: np.ndarray, rng: np.random.Generator) -> np.ndarr
     s_xy = ODOM_SIGMA_XY_PER_M * t + ODOM_SIGMA_XY_MIN_M
     s_th = ODOM_SIGMA_TH_PER_RAD * np.abs(d[:, 2]) + ODOM_SIGMA_TH_PER_M * t
     n = rng.normal(size=(len(d), 3))
-    dn = np.stack([d[:, 0] * (1 + e) + n[:, 0] * s_xy, d[:, 1] * (1 + e) + n[:, 1] * s_xy,
-                   d[:, 2] + b * t + n[:, 2] * s_th], axis=1)
+    dn = np.stack(
+        [d[:, 0] * (1 + e) + n[:, 0] * s_xy, d[:, 1] * (1 + e) + n[:, 1] * s_xy, d[:, 2] + b * t + n[:, 2] * s_th],
+        axis=1,
+    )
     out = np.empty_like(p)
     out[0] = p[0]
     for k in range(len(dn)):
@@ -86,8 +98,9 @@ def synthesise_odometry(truth: np.ndarray, rng: np.random.Generator) -> np.ndarr
     return out
 
 
-def relations_from_truth(truth: np.ndarray, stride: int = 10, lags=(10, 100), revisit_m: float = 3.0,
-                         revisit_gap: int = 300) -> np.ndarray:
+def relations_from_truth(
+    truth: np.ndarray, stride: int = 10, lags=(10, 100), revisit_m: float = 3.0, revisit_gap: int = 300
+) -> np.ndarray:
     """``(R, 2)`` index pairs ``(i, j)`` for relations (Kümmerle et al.): for every ``stride``-th
     scan ``i``, ``i + lag`` for each lag (short and medium spans), and the revisit: the scan
     nearest to ``i`` among those ``revisit_gap`` or more scans later, if within ``revisit_m``."""
@@ -97,7 +110,7 @@ def relations_from_truth(truth: np.ndarray, stride: int = 10, lags=(10, 100), re
     for i in range(0, k, stride):
         pairs += [(i, i + lag) for lag in lags if i + lag < k]
         if i + revisit_gap < k:
-            d = np.hypot(*(xy[i + revisit_gap:] - xy[i]).T)
+            d = np.hypot(*(xy[i + revisit_gap :] - xy[i]).T)
             j = int(np.argmin(d))
             if d[j] <= revisit_m:
                 pairs.append((i, i + revisit_gap + j))
@@ -108,12 +121,19 @@ def score(est: np.ndarray, truth: np.ndarray) -> dict:
     """ATE (aligned) and relations of a trajectory against the truth (same scans)."""
     a = ate(est, truth)
     pairs = relations_from_truth(truth)
-    err = relative_se2(relative_se2(truth[pairs[:, 0]], truth[pairs[:, 1]]),
-                       relative_se2(est[pairs[:, 0]], est[pairs[:, 1]]))
+    err = relative_se2(
+        relative_se2(truth[pairs[:, 0]], truth[pairs[:, 1]]), relative_se2(est[pairs[:, 0]], est[pairs[:, 1]])
+    )
     tr = np.hypot(err[:, 0], err[:, 1])
-    return {"ate_rmse": a["rmse"], "ate_max": a["max"], "rel_mean": float(tr.mean()),
-            "rel_median": float(np.median(tr)), "rel_over_05": float(np.mean(tr > 0.5)),
-            "rel_max": float(tr.max()), "n_rel": int(len(pairs))}
+    return {
+        "ate_rmse": a["rmse"],
+        "ate_max": a["max"],
+        "rel_mean": float(tr.mean()),
+        "rel_median": float(np.median(tr)),
+        "rel_over_05": float(np.mean(tr > 0.5)),
+        "rel_max": float(tr.max()),
+        "n_rel": int(len(pairs)),
+    }
 
 
 @dataclasses.dataclass
@@ -121,17 +141,18 @@ class Drive:
     """A world's scans with odometry and truth: what the filter gets and what it is scored on."""
 
     name: str
-    truth: np.ndarray          # (K, 3)
-    odom: np.ndarray           # (K, 3)
-    ranges: list               # K arrays (B,)
-    angles: list               # K arrays (B,)
+    truth: np.ndarray  # (K, 3)
+    odom: np.ndarray  # (K, 3)
+    ranges: list  # K arrays (B,)
+    angles: list  # K arrays (B,)
     range_max: float
 
 
-def building_drive(data_dir: Path, name: str, seed: int, _cache: dict = {}) -> Drive:
+def building_drive(data_dir: Path, name: str, seed: int, _cache: dict = {}) -> Drive:  # noqa: B006 (a per-process cache on purpose)
     """Corrected-pose building ``name`` with odometry synthesised with ``seed``."""
     if name not in _cache:
         from pf_slam_nodes.io.carmen import read_carmen
+
         log = read_carmen(Path(data_dir) / "carmen_corrected" / f"{name}-corrected.log.gz")
         truth = np.array([s.odom_pose for s in log.scans], dtype=np.float64)
         ranges = [np.asarray(s.ranges, dtype=np.float64) for s in log.scans]
@@ -144,6 +165,7 @@ def building_drive(data_dir: Path, name: str, seed: int, _cache: dict = {}) -> D
 
 def sim_drive(name: str, seed: int) -> Drive:
     from pf_slam_tools.sim.worlds import simulate_world
+
     d = simulate_world(name, seed)
     r = [row.astype(np.float64) for row in d.ranges]
     return Drive(name, d.truth, d.odom, r, [d.angles] * len(r), d.range_max)
@@ -153,51 +175,73 @@ def run_drive(drive: Drive, seed: int, overrides: dict | None = None) -> tuple[n
     """The drive through the ROS-free loop: ``(K, 3)`` poses and the run's numbers."""
     slam = ParticleFilterSlam(*indoor_configs(seed, overrides))
     t0 = time.perf_counter()
-    est = np.array([slam.process_odometry_scan(0.0, drive.odom[k], drive.ranges[k], drive.angles[k], 0.0,
-                                               drive.range_max) for k in range(len(drive.truth))])
+    est = np.array(
+        [
+            slam.process_odometry_scan(0.0, drive.odom[k], drive.ranges[k], drive.angles[k], 0.0, drive.range_max)
+            for k in range(len(drive.truth))
+        ]
+    )
     wall = time.perf_counter() - t0
     return est, {"wall_s": wall, "scans": len(est), "corrections": slam.num_updates}
 
 
-def bench(data_dir: Path | None, names, seeds, overrides: dict | None = None, out_dir: Path | None = None,
-          log=print) -> list[dict]:
+def bench(
+    data_dir: Path | None, names, seeds, overrides: dict | None = None, out_dir: Path | None = None, log=print
+) -> list[dict]:
     rows = []
     for name in names:
         for seed in seeds:
             drive = sim_drive(name, seed) if name in SIM_WORLDS else building_drive(data_dir, name, seed)
             est, info = run_drive(drive, seed, overrides)
             odo = score(drive.odom, drive.truth)
-            row = {"world": name, "seed": seed, **info, **score(est, drive.truth),
-                   "odom_ate_rmse": odo["ate_rmse"], "length_m": float(np.hypot(*np.diff(drive.truth[:, :2], axis=0).T).sum())}
+            row = {
+                "world": name,
+                "seed": seed,
+                **info,
+                **score(est, drive.truth),
+                "odom_ate_rmse": odo["ate_rmse"],
+                "length_m": float(np.hypot(*np.diff(drive.truth[:, :2], axis=0).T).sum()),
+            }
             rows.append(row)
             if out_dir is not None:
                 np.savetxt(Path(out_dir) / f"{name}_seed{seed}.txt", est, fmt="%.6f")
-            log(f"{name} seed {seed}: ATE {row['ate_rmse']:.3f} m (max {row['ate_max']:.2f}), relations "
-                f"{row['rel_mean']:.3f} m, {100 * row['rel_over_05']:.1f} % > 0.5 m, {row['wall_s']:.1f} s")
+            log(
+                f"{name} seed {seed}: ATE {row['ate_rmse']:.3f} m (max {row['ate_max']:.2f}), relations "
+                f"{row['rel_mean']:.3f} m, {100 * row['rel_over_05']:.1f} % > 0.5 m, {row['wall_s']:.1f} s"
+            )
     return rows
 
 
 def format_table(rows: list[dict]) -> str:
-    lines = ["| world | seed | scans | length m | wall s | ATE rmse (m) | ATE max (m) | relations mean (m) | "
-             "relations > 0.5 m | odometry ATE (m) |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        "| world | seed | scans | length m | wall s | ATE rmse (m) | ATE max (m) | relations mean (m) | "
+        "relations > 0.5 m | odometry ATE (m) |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for r in rows:
-        lines.append(f"| {r['world']} | {r['seed']} | {r['scans']} | {r['length_m']:.0f} | {r['wall_s']:.1f} | "
-                     f"{r['ate_rmse']:.3f} | {r['ate_max']:.2f} | {r['rel_mean']:.3f} | "
-                     f"{100 * r['rel_over_05']:.1f} % | {r['odom_ate_rmse']:.2f} |")
+        lines.append(
+            f"| {r['world']} | {r['seed']} | {r['scans']} | {r['length_m']:.0f} | {r['wall_s']:.1f} | "
+            f"{r['ate_rmse']:.3f} | {r['ate_max']:.2f} | {r['rel_mean']:.3f} | "
+            f"{100 * r['rel_over_05']:.1f} % | {r['odom_ate_rmse']:.2f} |"
+        )
     return "\n".join(lines)
 
 
 def summary_table(rows: list[dict]) -> str:
     """Per world over its seeds: median and worst ATE and relations."""
-    lines = ["| world | seeds | ATE median (m) | ATE worst (m) | relations median (m) | relations worst (m) | "
-             "worst share > 0.5 m |", "|---|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        "| world | seeds | ATE median (m) | ATE worst (m) | relations median (m) | relations worst (m) | "
+        "worst share > 0.5 m |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
     for name in dict.fromkeys(r["world"] for r in rows):
         rs = [r for r in rows if r["world"] == name]
         a = [r["ate_rmse"] for r in rs]
         m = [r["rel_mean"] for r in rs]
-        lines.append(f"| {name} | {len(rs)} | {np.median(a):.3f} | {max(a):.3f} | {np.median(m):.3f} | "
-                     f"{max(m):.3f} | {100 * max(r['rel_over_05'] for r in rs):.1f} % |")
+        lines.append(
+            f"| {name} | {len(rs)} | {np.median(a):.3f} | {max(a):.3f} | {np.median(m):.3f} | "
+            f"{max(m):.3f} | {100 * max(r['rel_over_05'] for r in rs):.1f} % |"
+        )
     return "\n".join(lines)
 
 
@@ -211,8 +255,9 @@ def section(names) -> tuple[str, str]:
     return "worlds", "corrected-pose buildings and simulated buildings"
 
 
-def main(data_dir: str, out_dir: str, names=None, seeds=(0, 1, 2, 3, 4), sim_seeds=None,
-         overrides: dict | None = None) -> str:
+def main(
+    data_dir: str, out_dir: str, names=None, seeds=(0, 1, 2, 3, 4), sim_seeds=None, overrides: dict | None = None
+) -> str:
     out = Path(out_dir) / "worlds"
     out.mkdir(parents=True, exist_ok=True)
     names = list(names or (BUILDINGS + SIM_WORLDS))
@@ -220,13 +265,18 @@ def main(data_dir: str, out_dir: str, names=None, seeds=(0, 1, 2, 3, 4), sim_see
     for name in names:
         s = sim_seeds if (name in SIM_WORLDS and sim_seeds) else seeds
         rows += bench(Path(data_dir), [name], s, overrides, out)
-    text = ("Median and worst over the seeds:\n\n" + summary_table(rows) + "\n\nEvery run:\n\n" + format_table(rows)
-            + "\n\nOdometry of the corrected-pose buildings synthesised from their corrected poses per seed: "
-            f"scale error {ODOM_SCALE[0]:.0%}-{ODOM_SCALE[1]:.0%}, heading bias {ODOM_HEADING_BIAS_DEG_PER_M[0]}-"
-            f"{ODOM_HEADING_BIAS_DEG_PER_M[1]} deg/m (random signs), noise {ODOM_SIGMA_XY_PER_M} m/m + "
-            f"{ODOM_SIGMA_XY_MIN_M} m per step, {ODOM_SIGMA_TH_PER_RAD} rad/rad + {ODOM_SIGMA_TH_PER_M} rad/m. "
-            "Relations: every 10th scan to 10 and 100 scans later, and to its revisit (nearest scan 300 or more "
-            "scans later within 3 m).")
+    text = (
+        "Median and worst over the seeds:\n\n"
+        + summary_table(rows)
+        + "\n\nEvery run:\n\n"
+        + format_table(rows)
+        + "\n\nOdometry of the corrected-pose buildings synthesised from their corrected poses per seed: "
+        f"scale error {ODOM_SCALE[0]:.0%}-{ODOM_SCALE[1]:.0%}, heading bias {ODOM_HEADING_BIAS_DEG_PER_M[0]}-"
+        f"{ODOM_HEADING_BIAS_DEG_PER_M[1]} deg/m (random signs), noise {ODOM_SIGMA_XY_PER_M} m/m + "
+        f"{ODOM_SIGMA_XY_MIN_M} m per step, {ODOM_SIGMA_TH_PER_RAD} rad/rad + {ODOM_SIGMA_TH_PER_M} rad/m. "
+        "Relations: every 10th scan to 10 and 100 scans later, and to its revisit (nearest scan 300 or more "
+        "scans later within 3 m)."
+    )
     part = section(names)[0]
     (out / f"{part}.md").write_text(text + "\n")
     (out / f"{part}.json").write_text(json.dumps(rows, indent=2) + "\n")

@@ -8,11 +8,12 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ['SimResult', 'simulate_indoor']
+__all__ = ["SimResult", "simulate_indoor"]
 
 
 def __getattr__(name: str) -> Any:
     if name in __all__:
         from pf_slam_tools.sim import indoor
+
         return getattr(indoor, name)
-    raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -17,29 +17,44 @@ from pf_slam_tools.sim.car_params import PARAM_FILES, extrinsic, yaml_matrix
 from pf_slam_tools.sim.car_world import KIND_BUILDING, KIND_CAR, KIND_CROWN, CarWorld
 
 __all__ = [
-    'IMAGE_H', 'IMAGE_W', 'LIDAR_ANGLES_RAD', 'LIDAR_MAX_M', 'N_LIDAR_BEAMS',
-    'STEREO_BASELINE_M', 'camera_pose', 'lidar_directions', 'lidar_ranges', 'ray_boxes',
-    'render_rgb', 'rgb_to_bayer', 'fog_deltas', 'encoder_counts',
+    "IMAGE_H",
+    "IMAGE_W",
+    "LIDAR_ANGLES_RAD",
+    "LIDAR_MAX_M",
+    "N_LIDAR_BEAMS",
+    "STEREO_BASELINE_M",
+    "camera_pose",
+    "lidar_directions",
+    "lidar_ranges",
+    "ray_boxes",
+    "render_rgb",
+    "rgb_to_bayer",
+    "fog_deltas",
+    "encoder_counts",
 ]
 
 # ---- calibration (from the param texts) ----------------------------------------------------
-R_LIDAR, T_LIDAR = extrinsic('Lidar')
-R_STEREO, T_STEREO = extrinsic('Stereo')
+R_LIDAR, T_LIDAR = extrinsic("Lidar")
+R_STEREO, T_STEREO = extrinsic("Stereo")
 N_LIDAR_BEAMS = 286
 LIDAR_START_DEG, LIDAR_STEP_DEG, LIDAR_MAX_M = -5.0, 0.666, 80.0
 LIDAR_ANGLES_RAD = np.deg2rad(LIDAR_START_DEG + LIDAR_STEP_DEG * np.arange(N_LIDAR_BEAMS))
-P_LEFT = yaml_matrix('left_camera.yaml', 'projection_matrix')
-P_RIGHT = yaml_matrix('right_camera.yaml', 'projection_matrix')
+P_LEFT = yaml_matrix("left_camera.yaml", "projection_matrix")
+P_RIGHT = yaml_matrix("right_camera.yaml", "projection_matrix")
 #: Baseline of the rectified pair, ``-P_right[0, 3] / f`` (0.4751492 m; ``stereo_param.txt``
 #: says 0.4751436 m): the images are rendered so that ``disparity = f * STEREO_BASELINE_M / Z``.
 STEREO_BASELINE_M = float(-P_RIGHT[0, 3] / P_RIGHT[0, 0])
 IMAGE_W, IMAGE_H = 1280, 560
-_ENC = {k.strip(): float(v) for k, v in (ln.split(':') for ln in
-        PARAM_FILES['EncoderParameter.txt'].splitlines() if ':' in ln and 'stored' not in ln)}
-ENCODER_TICKS = int(_ENC['Encoder resolution'])
-WHEEL_D_LEFT_M = _ENC['Encoder left wheel diameter']
-WHEEL_D_RIGHT_M = _ENC['Encoder right wheel diameter']
-WHEEL_BASE_M = _ENC['Encoder wheel base']
+_ENC = {
+    k.strip(): float(v)
+    for k, v in (
+        ln.split(":") for ln in PARAM_FILES["EncoderParameter.txt"].splitlines() if ":" in ln and "stored" not in ln
+    )
+}
+ENCODER_TICKS = int(_ENC["Encoder resolution"])
+WHEEL_D_LEFT_M = _ENC["Encoder left wheel diameter"]
+WHEEL_D_RIGHT_M = _ENC["Encoder right wheel diameter"]
+WHEEL_BASE_M = _ENC["Encoder wheel base"]
 
 LIDAR_SIGMA_M = 0.025
 LIDAR_DROPOUT = 0.01
@@ -53,8 +68,11 @@ def _rz(theta: np.ndarray) -> np.ndarray:
     return r
 
 
-def ray_boxes(origins: np.ndarray, dirs: np.ndarray, boxes: np.ndarray,
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def ray_boxes(
+    origins: np.ndarray,
+    dirs: np.ndarray,
+    boxes: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Nearest hit of rays with axis-aligned boxes (slab method, rays x boxes vectorised).
 
     Parameters
@@ -77,11 +95,11 @@ def ray_boxes(origins: np.ndarray, dirs: np.ndarray, boxes: np.ndarray,
     if len(boxes) == 0:
         return np.full(n, np.inf), np.full(n, -1), np.zeros(n, np.int8)
     tn = tf = axis = None
-    with np.errstate(divide='ignore', invalid='ignore'):
+    with np.errstate(divide="ignore", invalid="ignore"):
         for k in range(3):
-            inv = 1.0 / d[:, k:k + 1]
-            t1 = (boxes[None, :, k] - o[:, k:k + 1]) * inv            # (N, M)
-            t2 = (boxes[None, :, k + 3] - o[:, k:k + 1]) * inv
+            inv = 1.0 / d[:, k : k + 1]
+            t1 = (boxes[None, :, k] - o[:, k : k + 1]) * inv  # (N, M)
+            t2 = (boxes[None, :, k + 3] - o[:, k : k + 1]) * inv
             lo_k, hi_k = np.fmin(t1, t2), np.fmax(t1, t2)
             if tn is None:
                 tn, tf, axis = lo_k, hi_k, np.zeros(lo_k.shape, np.int8)
@@ -97,14 +115,17 @@ def ray_boxes(origins: np.ndarray, dirs: np.ndarray, boxes: np.ndarray,
     return t, idx, ax
 
 
-def _ray_box_image(o: np.ndarray, inv: np.ndarray, box: np.ndarray,
-                   ) -> tuple[np.ndarray, np.ndarray]:
+def _ray_box_image(
+    o: np.ndarray,
+    inv: np.ndarray,
+    box: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
     """One box against a block of pixel rays: ``inv`` ``(h, w, 3)`` = 1 / direction.
 
     Returns the entry ``t`` (``inf`` = miss) and the axis of the entered face, ``(h, w)``.
     """
     tn = tf = axis = None
-    with np.errstate(invalid='ignore'):
+    with np.errstate(invalid="ignore"):
         for k in range(3):
             t1 = (box[k] - o[k]) * inv[..., k]
             t2 = (box[k + 3] - o[k]) * inv[..., k]
@@ -149,13 +170,13 @@ def lidar_ranges(poses: np.ndarray, boxes: np.ndarray, chunk: int = 10) -> np.nd
     out = np.full((len(p), N_LIDAR_BEAMS), np.inf)
     lo, hi = boxes[:, :3], boxes[:, 3:]
     for k0 in range(0, len(p), chunk):
-        pk = p[k0:k0 + chunk]
-        rot = _rz(pk[:, 2])                                          # (k, 3, 3)
+        pk = p[k0 : k0 + chunk]
+        rot = _rz(pk[:, 2])  # (k, 3, 3)
         org = pk[:, None, :].copy()
         org[..., 2] = 0.0
-        org = org[:, 0] + rot @ T_LIDAR                             # (k, 3)
-        normal = rot @ R_LIDAR[:, 2]                                 # scan-plane normal
-        fan_y = rot @ R_LIDAR[:, 1]                                  # the 90 deg beam
+        org = org[:, 0] + rot @ T_LIDAR  # (k, 3)
+        normal = rot @ R_LIDAR[:, 2]  # scan-plane normal
+        fan_y = rot @ R_LIDAR[:, 1]  # the 90 deg beam
         # cull: boxes crossing the scan plane, in front of the sensor, within range
         cand = np.zeros(len(boxes), dtype=bool)
         for j in range(len(pk)):
@@ -166,17 +187,16 @@ def lidar_ranges(poses: np.ndarray, boxes: np.ndarray, chunk: int = 10) -> np.nd
             fmax = np.maximum(flo, fhi).sum(1) - fan_y[j] @ org[j]
             dx = np.maximum(np.maximum(lo[:, 0] - org[j, 0], org[j, 0] - hi[:, 0]), 0.0)
             dy = np.maximum(np.maximum(lo[:, 1] - org[j, 1], org[j, 1] - hi[:, 1]), 0.0)
-            cand |= (smin <= 0.0) & (smax >= 0.0) & (fmax > -8.0) & \
-                (dx * dx + dy * dy < LIDAR_MAX_M ** 2)
-        dirs = np.einsum('kij,bj->kbi', rot, dirs_v)                 # (k, B, 3)
+            cand |= (smin <= 0.0) & (smax >= 0.0) & (fmax > -8.0) & (dx * dx + dy * dy < LIDAR_MAX_M**2)
+        dirs = np.einsum("kij,bj->kbi", rot, dirs_v)  # (k, B, 3)
         o = np.repeat(org, N_LIDAR_BEAMS, axis=0)
         d = dirs.reshape(-1, 3)
         t, _, _ = ray_boxes(o, d, boxes[cand])
-        with np.errstate(divide='ignore'):
+        with np.errstate(divide="ignore"):
             tg = np.where(d[:, 2] < 0.0, -o[:, 2] / d[:, 2], np.inf)
         r = np.minimum(t, tg)
         r[r > LIDAR_MAX_M] = np.inf
-        out[k0:k0 + chunk] = r.reshape(len(pk), N_LIDAR_BEAMS)
+        out[k0 : k0 + chunk] = r.reshape(len(pk), N_LIDAR_BEAMS)
     return out
 
 
@@ -208,8 +228,7 @@ def _pixel_dirs() -> np.ndarray:
     if _PIX_DIRS is None:
         f, cx, cy = P_LEFT[0, 0], P_LEFT[0, 2], P_LEFT[1, 2]
         u, v = np.meshgrid(np.arange(IMAGE_W, dtype=np.float64), np.arange(IMAGE_H))
-        _PIX_DIRS = np.stack([(u - cx) / f, (v - cy) / f, np.ones_like(u)],
-                             axis=-1).astype(np.float32)
+        _PIX_DIRS = np.stack([(u - cx) / f, (v - cy) / f, np.ones_like(u)], axis=-1).astype(np.float32)
     return _PIX_DIRS
 
 
@@ -238,9 +257,14 @@ GRAIN_LAYERS = ((0.1, 5.0), (0.03, 4.0))
 SKY_TOP, SKY_HORIZON = np.array([95.0, 140.0, 205.0]), np.array([215.0, 225.0, 235.0])
 
 
-def render_rgb(pose: np.ndarray, world: CarWorld, right: bool = False,
-               render_range_m: float = 250.0, grain: bool = True,
-               depth: np.ndarray | None = None) -> np.ndarray:
+def render_rgb(
+    pose: np.ndarray,
+    world: CarWorld,
+    right: bool = False,
+    render_range_m: float = 250.0,
+    grain: bool = True,
+    depth: np.ndarray | None = None,
+) -> np.ndarray:
     """Ray-cast one rectified camera image at vehicle pose ``pose``.
 
     Per pixel: the ground plane (floor texture, bilinear, plus the ``GRAIN_LAYERS`` of
@@ -261,16 +285,16 @@ def render_rgb(pose: np.ndarray, world: CarWorld, right: bool = False,
     dc = _pixel_dirs()
     dw = (dc.reshape(-1, 3) @ r_wc.T.astype(np.float32)).reshape(IMAGE_H, IMAGE_W, 3)
     cz = np.float32(c[2])
-    with np.errstate(divide='ignore'):
+    with np.errstate(divide="ignore"):
         zbuf = np.where(dw[..., 2] < 0, -cz / dw[..., 2], np.inf).astype(np.float32)
         inv = 1.0 / dw
-    ident = np.full((IMAGE_H, IMAGE_W), -1, dtype=np.int32)          # -1 ground / sky
+    ident = np.full((IMAGE_H, IMAGE_W), -1, dtype=np.int32)  # -1 ground / sky
     axis = np.zeros((IMAGE_H, IMAGE_W), dtype=np.int8)
     # candidate boxes: project the corners
     b = world.boxes
-    corners = np.stack(np.meshgrid([0, 3], [1, 4], [2, 5], indexing='ij'), -1).reshape(-1, 3)
-    pts = b[:, corners]                                              # (M, 8, 3)
-    cam = (pts - c) @ r_wc                                           # (M, 8, 3) camera frame
+    corners = np.stack(np.meshgrid([0, 3], [1, 4], [2, 5], indexing="ij"), -1).reshape(-1, 3)
+    pts = b[:, corners]  # (M, 8, 3)
+    cam = (pts - c) @ r_wc  # (M, 8, 3) camera frame
     zc = cam[..., 2]
     dist = np.hypot(np.clip(c[0], b[:, 0], b[:, 3]) - c[0], np.clip(c[1], b[:, 1], b[:, 4]) - c[1])
     f, cx, cy = P_LEFT[0, 0], P_LEFT[0, 2], P_LEFT[1, 2]
@@ -278,12 +302,11 @@ def render_rgb(pose: np.ndarray, world: CarWorld, right: bool = False,
     near = 0.05
     for m in np.flatnonzero((zc.max(1) > near) & (dist < render_range_m)):
         q = cam[m]
-        if zc[m].min() <= near:                     # clip the box at the near plane
+        if zc[m].min() <= near:  # clip the box at the near plane
             za, zb = q[_EDGES[:, 0], 2], q[_EDGES[:, 1], 2]
             cut = (za - near) * (zb - near) < 0.0
             w = ((near - za[cut]) / (zb[cut] - za[cut]))[:, None]
-            q = np.concatenate([q[q[:, 2] > near], q[_EDGES[cut, 0]] * (1 - w)
-                                + q[_EDGES[cut, 1]] * w])
+            q = np.concatenate([q[q[:, 2] > near], q[_EDGES[cut, 0]] * (1 - w) + q[_EDGES[cut, 1]] * w])
         u = f * q[:, 0] / q[:, 2] + cx
         v = f * q[:, 1] / q[:, 2] + cy
         u0, u1 = max(int(u.min()), 0), min(int(u.max()) + 2, IMAGE_W)
@@ -299,7 +322,7 @@ def render_rgb(pose: np.ndarray, world: CarWorld, right: bool = False,
     hit = np.isfinite(zbuf)
     if depth is not None:
         depth[...] = zbuf
-    p = cf + dw * np.where(hit, zbuf, 0.0)[..., None]                # hit points (world)
+    p = cf + dw * np.where(hit, zbuf, 0.0)[..., None]  # hit points (world)
     img = np.empty((IMAGE_H, IMAGE_W, 3), dtype=np.float32)
     # sky
     sky = ~hit
@@ -312,8 +335,9 @@ def render_rgb(pose: np.ndarray, world: CarWorld, right: bool = False,
         res, org = world.texture_res_m, world.texture_origin
         mx = ((p[..., 0] - org[0]) / res - 0.5).astype(np.float32)
         my = ((p[..., 1] - org[1]) / res - 0.5).astype(np.float32)
-        tex = cv2.remap(world.texture, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                        borderValue=(90, 95, 75)).astype(np.float32)
+        tex = cv2.remap(
+            world.texture, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(90, 95, 75)
+        ).astype(np.float32)
         img[gnd] = tex[gnd]
         if grain:
             gx, gy = p[..., 0][gnd], p[..., 1][gnd]
@@ -366,9 +390,14 @@ def wheel_travel(s: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return s - 0.5 * WHEEL_BASE_M * dth, s + 0.5 * WHEEL_BASE_M * dth
 
 
-def encoder_counts(s: np.ndarray, theta: np.ndarray, d_true_m: tuple[float, float],
-                   offsets: tuple[float, float], slip_sigma: float,
-                   rng: np.random.Generator) -> np.ndarray:
+def encoder_counts(
+    s: np.ndarray,
+    theta: np.ndarray,
+    d_true_m: tuple[float, float],
+    offsets: tuple[float, float],
+    slip_sigma: float,
+    rng: np.random.Generator,
+) -> np.ndarray:
     """``(N, 2)`` int64 cumulative left / right counts at the samples of ``s`` / ``theta``.
 
     Wheel angle = travel / (d_true / 2) plus a slip random walk (``slip_sigma`` rad per
@@ -379,13 +408,13 @@ def encoder_counts(s: np.ndarray, theta: np.ndarray, d_true_m: tuple[float, floa
         ang = travel / (0.5 * d)
         dang = np.diff(ang, prepend=ang[0])
         slip = np.cumsum(rng.normal(size=len(ang)) * slip_sigma * np.sqrt(np.abs(dang)))
-        out.append(np.floor((ang + slip) * ENCODER_TICKS / (2 * math.pi)).astype(np.int64)
-                   + int(off))
+        out.append(np.floor((ang + slip) * ENCODER_TICKS / (2 * math.pi)).astype(np.int64) + int(off))
     return np.stack(out, axis=1)
 
 
-def fog_deltas(theta_prev: np.ndarray, theta: np.ndarray, bias: float, sigma: float,
-               sigma_rp: float, rng: np.random.Generator) -> np.ndarray:
+def fog_deltas(
+    theta_prev: np.ndarray, theta: np.ndarray, bias: float, sigma: float, sigma_rp: float, rng: np.random.Generator
+) -> np.ndarray:
     """``(N, 3)`` ``[delta_roll, delta_pitch, delta_yaw]`` (rad per sample)."""
     n = len(theta)
     dyaw = (theta - theta_prev) + bias + sigma * rng.normal(size=n)

@@ -29,8 +29,18 @@ from .paths import pose_on_path
 _DEFAULT = CarVariation()
 
 __all__ = [
-    'CarWorld', 'Drive', 'KIND_BUILDING', 'KIND_CAR', 'KIND_CROWN', 'KIND_POLE', 'KIND_TRUNK',
-    'build_world', 'occupancy_grid', 'plan_route', 'pose_on_path', 'shift_world',
+    "CarWorld",
+    "Drive",
+    "KIND_BUILDING",
+    "KIND_CAR",
+    "KIND_CROWN",
+    "KIND_POLE",
+    "KIND_TRUNK",
+    "build_world",
+    "occupancy_grid",
+    "plan_route",
+    "pose_on_path",
+    "shift_world",
 ]
 
 N_STREETS = 5
@@ -40,10 +50,21 @@ PARKING_LANE_M = 2.2
 TEXTURE_RES_M = 0.1
 KIND_BUILDING, KIND_CAR, KIND_POLE, KIND_TRUNK, KIND_CROWN = 0, 1, 2, 3, 4
 
-_BUILDING_RGB = np.array([[150, 150, 150], [190, 180, 160], [150, 80, 60], [90, 110, 140],
-                          [200, 200, 195], [120, 115, 105], [170, 140, 110]], dtype=np.float64)
-_CAR_RGB = np.array([[235, 235, 235], [170, 172, 175], [30, 30, 32], [30, 45, 90],
-                     [150, 25, 25], [95, 95, 100]], dtype=np.float64)
+_BUILDING_RGB = np.array(
+    [
+        [150, 150, 150],
+        [190, 180, 160],
+        [150, 80, 60],
+        [90, 110, 140],
+        [200, 200, 195],
+        [120, 115, 105],
+        [170, 140, 110],
+    ],
+    dtype=np.float64,
+)
+_CAR_RGB = np.array(
+    [[235, 235, 235], [170, 172, 175], [30, 30, 32], [30, 45, 90], [150, 25, 25], [95, 95, 100]], dtype=np.float64
+)
 
 
 @dataclass(frozen=True)
@@ -106,8 +127,7 @@ class Drive:
         return pose_on_path(self.pieces, self.s_at(np.asarray(t_s, dtype=np.float64)))
 
 
-def _intervals(lo: float, hi: float, n: int, min_len: float,
-               rng: np.random.Generator) -> list[tuple[float, float]]:
+def _intervals(lo: float, hi: float, n: int, min_len: float, rng: np.random.Generator) -> list[tuple[float, float]]:
     """Split ``[lo, hi]`` into up to ``n`` lots no shorter than ``min_len``."""
     n = max(1, min(n, int((hi - lo) // min_len)))
     cuts = np.sort(rng.uniform(0.25, 0.75, n - 1) + np.arange(n - 1)) / n if n > 1 else []
@@ -149,8 +169,14 @@ def _parking_lot(x0: float, y0: float, x1: float, y1: float, rng: np.random.Gene
     return out
 
 
-def _buildings(sx: np.ndarray, sy: np.ndarray, wx: np.ndarray, wy: np.ndarray,
-               rng: np.random.Generator, var: CarVariation = _DEFAULT) -> list[tuple]:
+def _buildings(
+    sx: np.ndarray,
+    sy: np.ndarray,
+    wx: np.ndarray,
+    wy: np.ndarray,
+    rng: np.random.Generator,
+    var: CarVariation = _DEFAULT,
+) -> list[tuple]:
     out = []
     for bx0, bx1 in _block_edges(sx, wx):
         for by0, by1 in _block_edges(sy, wy):
@@ -163,19 +189,25 @@ def _buildings(sx: np.ndarray, sy: np.ndarray, wx: np.ndarray, wy: np.ndarray,
                     inset = rng.uniform(0.0, var.inset_max_m, 4)
                     h = 6.0 + 34.0 * rng.random() ** 1.6
                     rgb = _BUILDING_RGB[rng.integers(len(_BUILDING_RGB))] + rng.uniform(-12, 12, 3)
-                    out.append(((lx0 + inset[0], ly0 + inset[1], 0.0, lx1 - inset[2],
-                                 ly1 - inset[3], h), KIND_BUILDING, rgb))
+                    out.append(
+                        ((lx0 + inset[0], ly0 + inset[1], 0.0, lx1 - inset[2], ly1 - inset[3], h), KIND_BUILDING, rgb)
+                    )
     return out
 
 
-def _street_furniture(sx: np.ndarray, sy: np.ndarray, wx: np.ndarray, wy: np.ndarray,
-                      rng: np.random.Generator, var: CarVariation = _DEFAULT) -> list[tuple]:
+def _street_furniture(
+    sx: np.ndarray,
+    sy: np.ndarray,
+    wx: np.ndarray,
+    wy: np.ndarray,
+    rng: np.random.Generator,
+    var: CarVariation = _DEFAULT,
+) -> list[tuple]:
     """Parked cars along both kerbs and poles / trees on both sidewalks of every segment."""
     out = []
-    for axis, (s_along, w_along, s_line, w_line) in enumerate(((sx, wx, sy, wy),
-                                                               (sy, wy, sx, wx))):
+    for axis, (s_along, w_along, s_line, w_line) in enumerate(((sx, wx, sy, wy), (sy, wy, sx, wx))):
         # axis 0: east-west streets (along x at y = s_line); axis 1: north-south streets
-        for j, (c, w) in enumerate(zip(s_line, w_line)):
+        for c, w in zip(s_line, w_line):
             for i in range(N_STREETS - 1):
                 a0 = s_along[i] + w_along[i] / 2 + 8.0
                 a1 = s_along[i + 1] - w_along[i + 1] / 2 - 8.0
@@ -204,19 +236,30 @@ def _street_furniture(sx: np.ndarray, sy: np.ndarray, wx: np.ndarray, wy: np.nda
                     while q < s_along[i + 1] - w_along[i + 1] / 2 - 4.0:
                         if rng.random() < 1.0 - var.tree_p:
                             hgt = rng.uniform(7.0, 9.0)
-                            out.append((_axis_box([q - 0.125, e - 0.125, 0.0, q + 0.125,
-                                                   e + 0.125, hgt], axis), KIND_POLE,
-                                        np.array([120.0, 122.0, 125.0])))
+                            out.append(
+                                (
+                                    _axis_box([q - 0.125, e - 0.125, 0.0, q + 0.125, e + 0.125, hgt], axis),
+                                    KIND_POLE,
+                                    np.array([120.0, 122.0, 125.0]),
+                                )
+                            )
                         else:
                             top = rng.uniform(2.6, 3.2)
-                            out.append((_axis_box([q - 0.18, e - 0.18, 0.0, q + 0.18, e + 0.18,
-                                                   top], axis), KIND_TRUNK,
-                                        np.array([90.0, 65.0, 45.0])))
+                            out.append(
+                                (
+                                    _axis_box([q - 0.18, e - 0.18, 0.0, q + 0.18, e + 0.18, top], axis),
+                                    KIND_TRUNK,
+                                    np.array([90.0, 65.0, 45.0]),
+                                )
+                            )
                             r = rng.uniform(1.1, 1.5)
-                            out.append((_axis_box([q - r, e - r, top, q + r, e + r,
-                                                   top + rng.uniform(2.2, 3.5)], axis),
-                                        KIND_CROWN, np.array([60.0, 110.0, 45.0])
-                                        + rng.uniform(-15, 15, 3)))
+                            out.append(
+                                (
+                                    _axis_box([q - r, e - r, top, q + r, e + r, top + rng.uniform(2.2, 3.5)], axis),
+                                    KIND_CROWN,
+                                    np.array([60.0, 110.0, 45.0]) + rng.uniform(-15, 15, 3),
+                                )
+                            )
                         q += rng.uniform(*var.furniture_gap_m)
     return out
 
@@ -229,8 +272,9 @@ def _axis_box(box: list[float], axis: int) -> tuple[float, ...]:
     return (c0, a0, z0, c1, a1, z1)
 
 
-def _paint(tex: np.ndarray, origin: np.ndarray, res: float, x0: float, y0: float, x1: float,
-           y1: float, value: int) -> None:
+def _paint(
+    tex: np.ndarray, origin: np.ndarray, res: float, x0: float, y0: float, x1: float, y1: float, value: int
+) -> None:
     c0 = max(int(round((x0 - origin[0]) / res)), 0)
     c1 = min(int(round((x1 - origin[0]) / res)), tex.shape[1])
     r0 = max(int(round((y0 - origin[1]) / res)), 0)
@@ -242,15 +286,21 @@ def _paint(tex: np.ndarray, origin: np.ndarray, res: float, x0: float, y0: float
 def _noise(shape: tuple[int, int], sigma: float, cell: int, rng: np.random.Generator) -> np.ndarray:
     """Smooth-ish noise: white noise at ``cell`` texels, bilinear upsampled (float32)."""
     import cv2
+
     small = rng.standard_normal((shape[0] // cell + 2, shape[1] // cell + 2)).astype(np.float32)
-    big = cv2.resize(small, (small.shape[1] * cell, small.shape[0] * cell),
-                     interpolation=cv2.INTER_LINEAR)
-    return sigma * big[:shape[0], :shape[1]]
+    big = cv2.resize(small, (small.shape[1] * cell, small.shape[0] * cell), interpolation=cv2.INTER_LINEAR)
+    return sigma * big[: shape[0], : shape[1]]
 
 
-def _floor_texture(sx: np.ndarray, sy: np.ndarray, wx: np.ndarray, wy: np.ndarray,
-                   bounds: np.ndarray, rng: np.random.Generator, res: float = TEXTURE_RES_M,
-                   ) -> tuple[np.ndarray, np.ndarray]:
+def _floor_texture(
+    sx: np.ndarray,
+    sy: np.ndarray,
+    wx: np.ndarray,
+    wy: np.ndarray,
+    bounds: np.ndarray,
+    rng: np.random.Generator,
+    res: float = TEXTURE_RES_M,
+) -> tuple[np.ndarray, np.ndarray]:
     """RGB floor texture (row 0 = lowest y) and the world position of its lower-left corner."""
     origin = np.array([bounds[0], bounds[1]])
     w = int(round((bounds[2] - bounds[0]) / res))
@@ -268,21 +318,20 @@ def _floor_texture(sx: np.ndarray, sy: np.ndarray, wx: np.ndarray, wy: np.ndarra
         _paint(cls, origin, res, c - wd / 2, ylo, c + wd / 2, yhi, 2)
     # markings, segment by segment (none inside the intersections)
     lw = 0.2
-    for axis, (s_along, w_along, s_line, w_line) in enumerate(((sx, wx, sy, wy),
-                                                               (sy, wy, sx, wx))):
+    for axis, (s_along, w_along, s_line, w_line) in enumerate(((sx, wx, sy, wy), (sy, wy, sx, wx))):
+
         def rect(a0: float, a1: float, b0: float, b1: float, axis: int = axis) -> None:
             if axis == 0:
                 _paint(cls, origin, res, a0, b0, a1, b1, 3)
             else:
                 _paint(cls, origin, res, b0, a0, b1, a1, 3)
-        ends = [s_along[0] - w_along[0] / 2 - SIDEWALK_M - OUTER_BLOCK_M] + \
-            list(s_along + w_along / 2)
-        starts_next = list(s_along - w_along / 2) + \
-            [s_along[-1] + w_along[-1] / 2 + SIDEWALK_M + OUTER_BLOCK_M]
+
+        ends = [s_along[0] - w_along[0] / 2 - SIDEWALK_M - OUTER_BLOCK_M] + list(s_along + w_along / 2)
+        starts_next = list(s_along - w_along / 2) + [s_along[-1] + w_along[-1] / 2 + SIDEWALK_M + OUTER_BLOCK_M]
         for c, wd in zip(s_line, w_line):
             edge = wd / 2 - PARKING_LANE_M
             for a0, a1 in zip(ends, starts_next):
-                inner0, inner1 = a0 + 5.0, a1 - 5.0      # leave room for the crossings
+                inner0, inner1 = a0 + 5.0, a1 - 5.0  # leave room for the crossings
                 for sgn in (-1.0, 1.0):
                     rect(inner0, inner1, c + sgn * edge - lw / 2, c + sgn * edge + lw / 2)
                 p = inner0 + 1.0
@@ -296,8 +345,8 @@ def _floor_texture(sx: np.ndarray, sy: np.ndarray, wx: np.ndarray, wy: np.ndarra
                         rect(z0, z1, b, b + 0.5)
                         b += 1.0
     tex = np.empty((h, w, 3), dtype=np.float32)
-    tex[:] = (105.0, 112.0, 80.0)                      # ground: dusty grass
-    grain = _noise((h, w), 1.0, 4, rng)            # 0.4 m cells: compresses well in PNG
+    tex[:] = (105.0, 112.0, 80.0)  # ground: dusty grass
+    grain = _noise((h, w), 1.0, 4, rng)  # 0.4 m cells: compresses well in PNG
     blotch = _noise((h, w), 1.0, 20, rng)
     side = cls == 1
     road = cls == 2
@@ -330,10 +379,20 @@ def build_world(rng: np.random.Generator, var: CarVariation = _DEFAULT) -> tuple
     by = _block_edges(sy, wy)
     bounds = np.array([bx[0][0], by[0][0], bx[-1][1], by[-1][1]])
     tex, origin = _floor_texture(sx, sy, wx, wy, bounds, rng)
-    world = CarWorld(boxes=boxes, kinds=kinds, colours=colours, bounds=bounds, texture=tex,
-                     texture_origin=origin, texture_res_m=TEXTURE_RES_M, street_x=sx,
-                     street_y=sy, width_x=wx, width_y=wy)
-    return world, {'sx': sx, 'sy': sy, 'wx': wx, 'wy': wy}
+    world = CarWorld(
+        boxes=boxes,
+        kinds=kinds,
+        colours=colours,
+        bounds=bounds,
+        texture=tex,
+        texture_origin=origin,
+        texture_res_m=TEXTURE_RES_M,
+        street_x=sx,
+        street_y=sy,
+        width_x=wx,
+        width_y=wy,
+    )
+    return world, {"sx": sx, "sy": sy, "wx": wx, "wy": wy}
 
 
 def shift_world(world: CarWorld, shift_xy: np.ndarray) -> CarWorld:
@@ -342,15 +401,26 @@ def shift_world(world: CarWorld, shift_xy: np.ndarray) -> CarWorld:
     boxes = world.boxes.copy()
     boxes[:, [0, 3]] += d[0]
     boxes[:, [1, 4]] += d[1]
-    return CarWorld(boxes=boxes, kinds=world.kinds, colours=world.colours,
-                    bounds=world.bounds + np.tile(d, 2), texture=world.texture,
-                    texture_origin=world.texture_origin + d, texture_res_m=world.texture_res_m,
-                    street_x=world.street_x + d[0], street_y=world.street_y + d[1],
-                    width_x=world.width_x, width_y=world.width_y)
+    return CarWorld(
+        boxes=boxes,
+        kinds=world.kinds,
+        colours=world.colours,
+        bounds=world.bounds + np.tile(d, 2),
+        texture=world.texture,
+        texture_origin=world.texture_origin + d,
+        texture_res_m=world.texture_res_m,
+        street_x=world.street_x + d[0],
+        street_y=world.street_y + d[1],
+        width_x=world.width_x,
+        width_y=world.width_y,
+    )
 
 
-def occupancy_grid(world: CarWorld, resolution_m: float, band_m: tuple[float, float] = (0.2, 2.0),
-                   ) -> tuple[np.ndarray, np.ndarray]:
+def occupancy_grid(
+    world: CarWorld,
+    resolution_m: float,
+    band_m: tuple[float, float] = (0.2, 2.0),
+) -> tuple[np.ndarray, np.ndarray]:
     """Ground-truth occupancy: footprints of the boxes that overlap the height band ``band_m``.
 
     Returns ``(H, W)`` int8 (row 0 = lowest y; 100 occupied, 0 free; every cell of the world
@@ -368,7 +438,7 @@ def occupancy_grid(world: CarWorld, resolution_m: float, band_m: tuple[float, fl
         c1 = max(int(math.floor((x1 - origin[0]) / resolution_m + 0.5)), c0 + 1)
         r0 = int(math.floor((y0 - origin[1]) / resolution_m + 0.5))
         r1 = max(int(math.floor((y1 - origin[1]) / resolution_m + 0.5)), r0 + 1)
-        occ[max(r0, 0):max(r1, 0), max(c0, 0):max(c1, 0)] = 100
+        occ[max(r0, 0) : max(r1, 0), max(c0, 0) : max(c1, 0)] = 100
     return occ, origin
 
 
@@ -378,21 +448,24 @@ def occupancy_grid(world: CarWorld, resolution_m: float, band_m: tuple[float, fl
 _DIRS = ((1, 0), (0, 1), (-1, 0), (0, -1))  # east, north, west, south
 
 
-def _route_nodes(n_min_m: float, layout: dict, rng: np.random.Generator,
-                 ) -> list[tuple[int, int]]:
+def _route_nodes(
+    n_min_m: float,
+    layout: dict,
+    rng: np.random.Generator,
+) -> list[tuple[int, int]]:
     """Start position and the list of grid nodes ``(i, j)`` to drive through."""
     n = N_STREETS
-    sx, sy = layout['sx'], layout['sy']
+    sx, sy = layout["sx"], layout["sy"]
     ccw = bool(rng.random() < 0.5)
     w, h = int(rng.integers(1, 3)), int(rng.integers(1, 3))
-    i0 = int(rng.integers(w - 1, n - 1))          # start on segment (i0, j0) -> (i0 + 1, j0)
+    i0 = int(rng.integers(w - 1, n - 1))  # start on segment (i0, j0) -> (i0 + 1, j0)
     j0 = int(rng.integers(0, n - h)) if ccw else int(rng.integers(h, n))
     dy = 1 if ccw else -1
     nodes = [(i0, j0), (i0 + 1, j0)]
     nodes += [(i0 + 1, j0 + dy * k) for k in range(1, h + 1)]
     nodes += [(i0 + 1 - k, j0 + dy * h) for k in range(1, w + 1)]
     nodes += [(i0 + 1 - w, j0 + dy * (h - k)) for k in range(1, h + 1)]
-    nodes += [(i0 + 1 - w + k, j0) for k in range(1, w + 1)]   # back through the start street
+    nodes += [(i0 + 1 - w + k, j0) for k in range(1, w + 1)]  # back through the start street
     length = 0.0
     for a, b in zip(nodes[:-1], nodes[1:]):
         length += abs(sx[a[0]] - sx[b[0]]) + abs(sy[a[1]] - sy[b[1]])
@@ -414,14 +487,18 @@ def _route_nodes(n_min_m: float, layout: dict, rng: np.random.Generator,
     return nodes
 
 
-def plan_route(duration_s: float, layout: dict, rng: np.random.Generator, var: CarVariation = _DEFAULT,
-               ) -> tuple[Drive, np.ndarray, np.ndarray]:
+def plan_route(
+    duration_s: float,
+    layout: dict,
+    rng: np.random.Generator,
+    var: CarVariation = _DEFAULT,
+) -> tuple[Drive, np.ndarray, np.ndarray]:
     """The seeded drive, in the GRID frame.
 
     Returns the drive, the start position (grid frame, the start heading is ``+x``) and the
     arc lengths of the stop points.
     """
-    sx, sy, wx, wy = layout['sx'], layout['sy'], layout['wx'], layout['wy']
+    sx, sy, wx, wy = layout["sx"], layout["sy"], layout["wx"], layout["wy"]
     nodes = _route_nodes(max(12.0, var.speed_mps[1]) * duration_s + 300.0, layout, rng)
 
     def node_xy(nd: tuple[int, int]) -> np.ndarray:
@@ -441,11 +518,12 @@ def plan_route(duration_s: float, layout: dict, rng: np.random.Generator, var: C
 
     u0 = unit(nodes[0], nodes[1])
     frac = rng.uniform(0.3, 0.45)
-    start = node_xy(nodes[0]) + frac * (node_xy(nodes[1]) - node_xy(nodes[0])) + \
-        lane_off(nodes[0], nodes[1]) * right(u0)
+    start = (
+        node_xy(nodes[0]) + frac * (node_xy(nodes[1]) - node_xy(nodes[0])) + lane_off(nodes[0], nodes[1]) * right(u0)
+    )
     pieces = []
     pos, heading = start.copy(), 0.0
-    node_s = []           # arc length where the path passes each node
+    node_s = []  # arc length where the path passes each node
     s_acc = 0.0
     for k in range(1, len(nodes) - 1):
         u_in, u_out = unit(nodes[k - 1], nodes[k]), unit(nodes[k], nodes[k + 1])
@@ -455,13 +533,15 @@ def plan_route(duration_s: float, layout: dict, rng: np.random.Generator, var: C
             continue
         turn = math.copysign(0.5 * math.pi, cross)
         radius = rng.uniform(8.0, 11.0) if cross > 0 else rng.uniform(4.5, 6.0)
-        corner = node_xy(nodes[k]) + lane_off(nodes[k - 1], nodes[k]) * right(u_in) + \
-            lane_off(nodes[k], nodes[k + 1]) * right(u_out)
+        corner = (
+            node_xy(nodes[k])
+            + lane_off(nodes[k - 1], nodes[k]) * right(u_in)
+            + lane_off(nodes[k], nodes[k + 1]) * right(u_out)
+        )
         a_start = corner - radius * u_in
         line = float(np.dot(a_start - pos, u_in))
         pieces.append((pos[0], pos[1], heading, 0.0, line))
-        pieces.append((a_start[0], a_start[1], heading, math.copysign(1.0 / radius, turn),
-                       radius * abs(turn)))
+        pieces.append((a_start[0], a_start[1], heading, math.copysign(1.0 / radius, turn), radius * abs(turn)))
         node_s.append(s_acc + line + 0.5 * radius * abs(turn))
         s_acc += line + radius * abs(turn)
         heading += turn
@@ -476,7 +556,7 @@ def plan_route(duration_s: float, layout: dict, rng: np.random.Generator, var: C
     ds = 0.1
     s = np.arange(0.0, total, ds)
     s0 = np.concatenate([[0.0], np.cumsum(pieces_a[:, 4])[:-1]])
-    idx = np.clip(np.searchsorted(s0, s, side='right') - 1, 0, len(pieces_a) - 1)
+    idx = np.clip(np.searchsorted(s0, s, side="right") - 1, 0, len(pieces_a) - 1)
     kappa = np.abs(pieces_a[idx, 3])
     leg_v = rng.uniform(*var.speed_mps, len(pieces_a))
     vlim = np.minimum(leg_v[idx], np.sqrt(2.5 / np.maximum(kappa, 1e-9)))
@@ -495,9 +575,9 @@ def plan_route(duration_s: float, layout: dict, rng: np.random.Generator, var: C
     vlim[stop_idx] = 0.0
     a_acc, a_dec = 1.8, 2.5
     v = vlim.copy()
-    for i in range(1, len(v)):                      # forward pass (acceleration limit)
+    for i in range(1, len(v)):  # forward pass (acceleration limit)
         v[i] = min(v[i], math.sqrt(v[i - 1] ** 2 + 2 * a_acc * ds))
-    for i in range(len(v) - 2, -1, -1):             # backward pass (braking limit)
+    for i in range(len(v) - 2, -1, -1):  # backward pass (braking limit)
         v[i] = min(v[i], math.sqrt(v[i + 1] ** 2 + 2 * a_dec * ds))
     dt = 2.0 * ds / np.maximum(v[1:] + v[:-1], 1e-6)
     t = np.concatenate([[0.0], np.cumsum(dt)])

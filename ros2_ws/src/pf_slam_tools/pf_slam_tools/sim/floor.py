@@ -6,6 +6,7 @@ bounding box of the floor, far beyond a 100 m grid. Same laser, odometry model a
 :mod:`pf_slam_tools.sim.indoor` (``pf-slam simulate-indoor --world floor``); the office sample is
 not touched by this module.
 """
+
 from __future__ import annotations
 
 import math
@@ -20,14 +21,26 @@ from pf_slam_nodes.io.mapfile import write_map
 from pf_slam_nodes.io.trajectory import write_tum
 
 from . import indoor
-from .indoor import (BASE_FRAME, EPOCH_NS, LASER_FRAME, RANGE_MAX_M, SCAN_RATE_HZ, SIM_RATE_HZ, IndoorWorld,
-                     SimResult, _box_corners, _loop_primitives, rasterise_world, simulate_odometry,
-                     simulate_scans)
+from .indoor import (
+    BASE_FRAME,
+    EPOCH_NS,
+    LASER_FRAME,
+    RANGE_MAX_M,
+    SCAN_RATE_HZ,
+    SIM_RATE_HZ,
+    IndoorWorld,
+    SimResult,
+    _box_corners,
+    _loop_primitives,
+    rasterise_world,
+    simulate_odometry,
+    simulate_scans,
+)
 from .paths import pose_on_path
 
-__all__ = ['FLOOR_BAG_NAME', 'floor_world', 'plan_floor_drive', 'simulate_floor']
+__all__ = ["FLOOR_BAG_NAME", "floor_world", "plan_floor_drive", "simulate_floor"]
 
-FLOOR_BAG_NAME = 'large_floor'
+FLOOR_BAG_NAME = "large_floor"
 CORRIDOR_M = 6.0
 #: the world's features come from this seed (the floor is the same for every drive seed)
 WORLD_SEED = 18
@@ -40,12 +53,19 @@ def floor_world(length_m: float = 300.0, width_m: float = 150.0, corridor_m: flo
     heading east; the floor spans ``[-corridor/2, length - corridor/2] x [-corridor/2, ...]``."""
     rng = np.random.default_rng(WORLD_SEED)
     L, W, c = float(length_m), float(width_m), float(corridor_m)
-    segs = [(0, 0, L, 0), (L, 0, L, W), (L, W, 0, W), (0, W, 0, 0),            # outer
-            (c, c, L - c, c), (L - c, c, L - c, W - c), (L - c, W - c, c, W - c), (c, W - c, c, c)]
+    segs = [
+        (0, 0, L, 0),
+        (L, 0, L, W),
+        (L, W, 0, W),
+        (0, W, 0, 0),  # outer
+        (c, c, L - c, c),
+        (L - c, c, L - c, W - c),
+        (L - c, W - c, c, W - c),
+        (c, W - c, c, c),
+    ]
     boxes = []
     # along each side of the ring: features on the outer wall (inside) and the inner wall
-    sides = [((0, 0), (L, 0), (0, 1)), ((L, 0), (L, W), (-1, 0)), ((L, W), (0, W), (0, -1)),
-             ((0, W), (0, 0), (1, 0))]
+    sides = [((0, 0), (L, 0), (0, 1)), ((L, 0), (L, W), (-1, 0)), ((L, W), (0, W), (0, -1)), ((0, W), (0, 0), (1, 0))]
     for (x0, y0), (x1, y1), (nx, ny) in sides:
         length = math.hypot(x1 - x0, y1 - y0)
         ux, uy = (x1 - x0) / length, (y1 - y0) / length
@@ -55,8 +75,9 @@ def floor_world(length_m: float = 300.0, width_m: float = 150.0, corridor_m: flo
                 depth = rng.uniform(0.3, 0.8)
                 size = rng.uniform(0.4, 1.6)
                 d = wall_off + sign * 0.5 * depth
-                boxes.append((x0 + ux * s + nx * d, y0 + uy * s + ny * d,
-                              size if ux else depth, depth if ux else size, 0.0))
+                boxes.append(
+                    (x0 + ux * s + nx * d, y0 + uy * s + ny * d, size if ux else depth, depth if ux else size, 0.0)
+                )
                 s += rng.uniform(5.0, 11.0)
     b = np.array(boxes, dtype=np.float64)
     corners = _box_corners(b)
@@ -67,8 +88,14 @@ def floor_world(length_m: float = 300.0, width_m: float = 150.0, corridor_m: flo
     return IndoorWorld(segments=segments, boxes=b, bounds=np.array([0.0, 0.0, L, W]) - shift)
 
 
-def plan_floor_drive(length_m: float, width_m: float, speed_mps: float, rng: np.random.Generator,
-                     corridor_m: float = CORRIDOR_M, rate_hz: int = SIM_RATE_HZ) -> np.ndarray:
+def plan_floor_drive(
+    length_m: float,
+    width_m: float,
+    speed_mps: float,
+    rng: np.random.Generator,
+    corridor_m: float = CORRIDOR_M,
+    rate_hz: int = SIM_RATE_HZ,
+) -> np.ndarray:
     """True poses ``(N, 3)`` at ``rate_hz``: east along the south corridor, a 2 m-radius turn,
     north along the east corridor to the far corner (centre lines, seeded +-0.3 m weave)."""
     c = corridor_m
@@ -90,22 +117,28 @@ def plan_floor_drive(length_m: float, width_m: float, speed_mps: float, rng: np.
     return p
 
 
-def simulate_floor(out_dir: str | os.PathLike, seed: int = 0, length_m: float = 300.0,
-                   width_m: float = 150.0, speed_mps: float = 3.0, odom_rate_hz: int = 20,
-                   overwrite: bool = False, storage: str = 'mcap') -> SimResult:
+def simulate_floor(
+    out_dir: str | os.PathLike,
+    seed: int = 0,
+    length_m: float = 300.0,
+    width_m: float = 150.0,
+    speed_mps: float = 3.0,
+    odom_rate_hz: int = 20,
+    overwrite: bool = False,
+    storage: str = "mcap",
+) -> SimResult:
     """Write ``out_dir/large_floor`` (rosbag2 as the office sample's: /scan 10 Hz, /odom, /tf_static),
     ``out_dir/large_floor_ground_truth.tum`` and ``large_floor_map.pgm/.yaml`` (0.5 m)."""
     if not (length_m >= 2 * CORRIDOR_M + 10 and width_m >= 2 * CORRIDOR_M + 10):
-        raise ValueError(f'the floor must be at least {2 * CORRIDOR_M + 10} m on each side')
+        raise ValueError(f"the floor must be at least {2 * CORRIDOR_M + 10} m on each side")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     bag_path = out / FLOOR_BAG_NAME
     if bag_path.exists() and overwrite:
-        if not (bag_path.is_dir() and (bag_path / 'metadata.yaml').is_file()):
-            raise BagError(f'{bag_path}: exists and is not a rosbag2 directory; not removing it')
+        if not (bag_path.is_dir() and (bag_path / "metadata.yaml").is_file()):
+            raise BagError(f"{bag_path}: exists and is not a rosbag2 directory; not removing it")
         shutil.rmtree(bag_path)
-    drive_rng, odom_rng, laser_rng = (np.random.default_rng(s) for s in
-                                      np.random.SeedSequence(int(seed)).spawn(3))
+    drive_rng, odom_rng, laser_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(3))
     world = floor_world(length_m, width_m)
     truth = plan_floor_drive(length_m, width_m, speed_mps, drive_rng)
     odom = simulate_odometry(truth, odom_rng)
@@ -115,22 +148,42 @@ def simulate_floor(out_dir: str | os.PathLike, seed: int = 0, length_m: float = 
     seg = world.segments
     ranges = np.empty((len(scan_idx), indoor.N_BEAMS), dtype=np.float32)
     for k0 in range(0, len(scan_idx), 50):
-        ks = scan_idx[k0:k0 + 50]
+        ks = scan_idx[k0 : k0 + 50]
         lo = truth[ks, :2].min(axis=0) - RANGE_MAX_M - 1
         hi = truth[ks, :2].max(axis=0) + RANGE_MAX_M + 1
-        near = ((np.maximum(seg[:, 0], seg[:, 2]) >= lo[0]) & (np.minimum(seg[:, 0], seg[:, 2]) <= hi[0])
-                & (np.maximum(seg[:, 1], seg[:, 3]) >= lo[1]) & (np.minimum(seg[:, 1], seg[:, 3]) <= hi[1]))
-        ranges[k0:k0 + 50] = simulate_scans(truth[ks], seg[near], laser_rng)
+        near = (
+            (np.maximum(seg[:, 0], seg[:, 2]) >= lo[0])
+            & (np.minimum(seg[:, 0], seg[:, 2]) <= hi[0])
+            & (np.maximum(seg[:, 1], seg[:, 3]) >= lo[1])
+            & (np.minimum(seg[:, 1], seg[:, 3]) <= hi[1])
+        )
+        ranges[k0 : k0 + 50] = simulate_scans(truth[ks], seg[near], laser_rng)
     stamps_ns = EPOCH_NS + np.arange(len(truth), dtype=np.int64) * (1_000_000_000 // SIM_RATE_HZ)
-    n_odom = indoor.write_sim_bag(bag_path, storage, stamps_ns, odom, ranges, odom_step, scan_step,
-                                  [(BASE_FRAME, LASER_FRAME, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))], LASER_FRAME,
-                                  f'floor {length_m:g}x{width_m:g} m seed={int(seed)}')
-    gt_path = out / f'{FLOOR_BAG_NAME}_ground_truth.tum'
+    n_odom = indoor.write_sim_bag(
+        bag_path,
+        storage,
+        stamps_ns,
+        odom,
+        ranges,
+        odom_step,
+        scan_step,
+        [(BASE_FRAME, LASER_FRAME, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))],
+        LASER_FRAME,
+        f"floor {length_m:g}x{width_m:g} m seed={int(seed)}",
+    )
+    gt_path = out / f"{FLOOR_BAG_NAME}_ground_truth.tum"
     write_tum(gt_path, stamps_ns[scan_idx] / 1e9, truth[scan_idx])
     occ, origin = rasterise_world(world, 0.5)
-    map_yaml = write_map(out, occ, 0.5, origin, name=f'{FLOOR_BAG_NAME}_map')
+    map_yaml = write_map(out, occ, 0.5, origin, name=f"{FLOOR_BAG_NAME}_map")
     last = scan_idx[-1]
-    return SimResult(bag_path=bag_path, ground_truth_path=gt_path, map_yaml_path=Path(map_yaml), seed=int(seed),
-                     duration_s=len(scan_idx) / SCAN_RATE_HZ, n_scans=len(scan_idx), n_odom=n_odom,
-                     path_length_m=float(np.hypot(*np.diff(truth[:, :2], axis=0).T).sum()),
-                     odom_drift_m=float(np.hypot(*(odom[last, :2] - truth[last, :2]))))
+    return SimResult(
+        bag_path=bag_path,
+        ground_truth_path=gt_path,
+        map_yaml_path=Path(map_yaml),
+        seed=int(seed),
+        duration_s=len(scan_idx) / SCAN_RATE_HZ,
+        n_scans=len(scan_idx),
+        n_odom=n_odom,
+        path_length_m=float(np.hypot(*np.diff(truth[:, :2], axis=0).T).sum()),
+        odom_drift_m=float(np.hypot(*(odom[last, :2] - truth[last, :2]))),
+    )

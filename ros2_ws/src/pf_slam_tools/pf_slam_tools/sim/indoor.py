@@ -39,33 +39,33 @@ from pathlib import Path
 
 import numpy as np
 
-from .paths import pose_on_path
-
 from pf_slam_nodes.core.geometry import rpy_to_matrix, rpy_to_quat
 from pf_slam_nodes.io.bag import BagError, laser_scan, odometry, open_writer, tf_static
 from pf_slam_nodes.io.mapfile import write_map
 from pf_slam_nodes.io.trajectory import write_tum
 
+from .paths import pose_on_path
+
 __all__ = [
-    'ANGLE_INCREMENT_RAD',
-    'ANGLE_MIN_RAD',
-    'EPOCH_NS',
-    'IndoorWorld',
-    'N_BEAMS',
-    'RANGE_MAX_M',
-    'SimResult',
-    'beam_angles',
-    'build_parser',
-    'distance_to_segments',
-    'main',
-    'office_world',
-    'plan_drive',
-    'rasterise_world',
-    'ray_cast',
-    'simulate_indoor',
-    'simulate_odometry',
-    'mount_pose',
-    'simulate_scans',
+    "ANGLE_INCREMENT_RAD",
+    "ANGLE_MIN_RAD",
+    "EPOCH_NS",
+    "IndoorWorld",
+    "N_BEAMS",
+    "RANGE_MAX_M",
+    "SimResult",
+    "beam_angles",
+    "build_parser",
+    "distance_to_segments",
+    "main",
+    "office_world",
+    "plan_drive",
+    "rasterise_world",
+    "ray_cast",
+    "simulate_indoor",
+    "simulate_odometry",
+    "mount_pose",
+    "simulate_scans",
 ]
 
 #: Record / header time of the first message (2023-11-14T22:13:20Z).
@@ -83,11 +83,11 @@ DROPOUT_PROB = 0.01
 WHEEL_BASE_M = 0.4
 MAP_RESOLUTION_M = 0.05
 
-BAG_NAME = 'sample_indoor'
-GROUND_TRUTH_NAME = 'ground_truth.tum'
-MAP_NAME = 'ground_truth_map'
-SCAN_TOPIC, ODOM_TOPIC, TF_STATIC_TOPIC = '/scan', '/odom', '/tf_static'
-LASER_FRAME, BASE_FRAME, ODOM_FRAME = 'laser', 'base_link', 'odom'
+BAG_NAME = "sample_indoor"
+GROUND_TRUTH_NAME = "ground_truth.tum"
+MAP_NAME = "ground_truth_map"
+SCAN_TOPIC, ODOM_TOPIC, TF_STATIC_TOPIC = "/scan", "/odom", "/tf_static"
+LASER_FRAME, BASE_FRAME, ODOM_FRAME = "laser", "base_link", "odom"
 
 # --------------------------------------------------------------------------------------------
 # world (floor-plan coordinates, metres; shifted to the start frame by ``office_world``)
@@ -96,31 +96,31 @@ _FLOOR_W_M, _FLOOR_H_M = 20.0, 15.0
 _DOOR_W_M = 1.2
 #: ``(axis, fixed coordinate, from, to, door centres)``: 'h' runs along x at y = fixed.
 _WALLS: tuple[tuple[str, float, float, float, tuple[float, ...]], ...] = (
-    ('h', 0.0, 0.0, 20.0, ()),                 # south outer wall
-    ('h', 15.0, 0.0, 20.0, ()),                # north outer wall
-    ('v', 0.0, 0.0, 15.0, ()),                 # west outer wall
-    ('v', 20.0, 0.0, 15.0, ()),                # east outer wall
-    ('h', 6.5, 0.0, 20.0, (3.0, 10.0, 17.0)),  # corridor south wall: doors to rooms A, B, C
-    ('h', 8.5, 0.0, 20.0, (5.0, 15.0)),        # corridor north wall: doors to rooms D, E
-    ('v', 7.0, 0.0, 6.5, (3.0,)),              # room A | room B, with a door
-    ('v', 13.0, 0.0, 6.5, ()),                 # room B | room C
-    ('v', 9.0, 8.5, 15.0, ()),                 # room D | room E
-    ('v', 14.5, 11.5, 15.0, ()),               # partition in room E
+    ("h", 0.0, 0.0, 20.0, ()),  # south outer wall
+    ("h", 15.0, 0.0, 20.0, ()),  # north outer wall
+    ("v", 0.0, 0.0, 15.0, ()),  # west outer wall
+    ("v", 20.0, 0.0, 15.0, ()),  # east outer wall
+    ("h", 6.5, 0.0, 20.0, (3.0, 10.0, 17.0)),  # corridor south wall: doors to rooms A, B, C
+    ("h", 8.5, 0.0, 20.0, (5.0, 15.0)),  # corridor north wall: doors to rooms D, E
+    ("v", 7.0, 0.0, 6.5, (3.0,)),  # room A | room B, with a door
+    ("v", 13.0, 0.0, 6.5, ()),  # room B | room C
+    ("v", 9.0, 8.5, 15.0, ()),  # room D | room E
+    ("v", 14.5, 11.5, 15.0, ()),  # partition in room E
 )
 #: Boxes and pillars ``(cx, cy, length_x, width_y, yaw_deg)``.
 _BOXES: tuple[tuple[float, float, float, float, float], ...] = (
-    (1.2, 1.0, 1.2, 0.8, 0.0),      # A: desk
-    (0.35, 4.6, 0.6, 1.6, 0.0),     # A: cabinet on the west wall
-    (5.6, 5.4, 0.4, 0.4, 0.0),      # A: pillar
-    (8.6, 1.1, 1.0, 0.6, 30.0),     # B: crate, rotated
-    (11.8, 1.8, 0.4, 0.4, 0.0),     # B: pillar
-    (12.2, 5.2, 0.8, 1.2, 0.0),     # B: shelf
-    (16.5, 3.0, 2.0, 1.0, 0.0),     # C: table
-    (4.5, 12.0, 2.0, 1.0, 0.0),     # D: table
-    (7.5, 10.5, 0.4, 0.4, 0.0),     # D: pillar
-    (17.5, 10.5, 1.0, 1.0, 15.0),   # E: crate, rotated
-    (7.0, 8.35, 0.8, 0.3, 0.0),     # corridor: cabinet on the north wall
-    (13.5, 6.65, 0.6, 0.3, 0.0),    # corridor: cabinet on the south wall
+    (1.2, 1.0, 1.2, 0.8, 0.0),  # A: desk
+    (0.35, 4.6, 0.6, 1.6, 0.0),  # A: cabinet on the west wall
+    (5.6, 5.4, 0.4, 0.4, 0.0),  # A: pillar
+    (8.6, 1.1, 1.0, 0.6, 30.0),  # B: crate, rotated
+    (11.8, 1.8, 0.4, 0.4, 0.0),  # B: pillar
+    (12.2, 5.2, 0.8, 1.2, 0.0),  # B: shelf
+    (16.5, 3.0, 2.0, 1.0, 0.0),  # C: table
+    (4.5, 12.0, 2.0, 1.0, 0.0),  # D: table
+    (7.5, 10.5, 0.4, 0.4, 0.0),  # D: pillar
+    (17.5, 10.5, 1.0, 1.0, 15.0),  # E: crate, rotated
+    (7.0, 8.35, 0.8, 0.3, 0.0),  # corridor: cabinet on the north wall
+    (13.5, 6.65, 0.6, 0.3, 0.0),  # corridor: cabinet on the south wall
 )
 #: True starting pose in floor-plan coordinates (heading east along the corridor).
 _START_XY = (4.5, 7.5)
@@ -166,7 +166,7 @@ def office_world() -> IndoorWorld:
         starts = [lo] + [c + 0.5 * _DOOR_W_M for c in cuts]
         ends = [c - 0.5 * _DOOR_W_M for c in cuts] + [hi]
         for a, b in zip(starts, ends):
-            segs.append((a, fixed, b, fixed) if axis == 'h' else (fixed, a, fixed, b))
+            segs.append((a, fixed, b, fixed) if axis == "h" else (fixed, a, fixed, b))
     boxes = np.array(_BOXES, dtype=np.float64)
     boxes[:, 4] = np.deg2rad(boxes[:, 4])
     corners = _box_corners(boxes)
@@ -187,8 +187,9 @@ def beam_angles() -> np.ndarray:
     return ANGLE_MIN_RAD + ANGLE_INCREMENT_RAD * np.arange(N_BEAMS, dtype=np.float64)
 
 
-def ray_cast(poses: np.ndarray, angles: np.ndarray, segments: np.ndarray,
-             range_max_m: float, chunk: int = 64) -> np.ndarray:
+def ray_cast(
+    poses: np.ndarray, angles: np.ndarray, segments: np.ndarray, range_max_m: float, chunk: int = 64
+) -> np.ndarray:
     """Noise-free ranges of beams against wall segments (beams x segments, vectorised).
 
     Parameters
@@ -215,29 +216,28 @@ def ray_cast(poses: np.ndarray, angles: np.ndarray, segments: np.ndarray,
     p = p.reshape(-1, 3)
     a = np.asarray(angles, dtype=np.float64).ravel()
     seg = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
-    e = seg[:, 2:] - seg[:, :2]                                    # (M, 2)
+    e = seg[:, 2:] - seg[:, :2]  # (M, 2)
     out = np.full((len(p), len(a)), np.inf)
     for k0 in range(0, len(p), chunk):
-        pk = p[k0:k0 + chunk]
-        th = pk[:, 2:3] + a[None]                                  # (k, B)
-        dx, dy = np.cos(th)[..., None], np.sin(th)[..., None]      # (k, B, 1)
-        wx = seg[None, :, 0] - pk[:, 0:1]                          # (k, M)
+        pk = p[k0 : k0 + chunk]
+        th = pk[:, 2:3] + a[None]  # (k, B)
+        dx, dy = np.cos(th)[..., None], np.sin(th)[..., None]  # (k, B, 1)
+        wx = seg[None, :, 0] - pk[:, 0:1]  # (k, M)
         wy = seg[None, :, 1] - pk[:, 1:2]
-        denom = dx * e[:, 1] - dy * e[:, 0]                        # (k, B, M) cross(d, e)
-        num_t = (wx * e[:, 1] - wy * e[:, 0])[:, None, :]          # cross(w, e)
-        num_u = wx[:, None, :] * dy - wy[:, None, :] * dx          # cross(w, d)
-        with np.errstate(divide='ignore', invalid='ignore'):
+        denom = dx * e[:, 1] - dy * e[:, 0]  # (k, B, M) cross(d, e)
+        num_t = (wx * e[:, 1] - wy * e[:, 0])[:, None, :]  # cross(w, e)
+        num_u = wx[:, None, :] * dy - wy[:, None, :] * dx  # cross(w, d)
+        with np.errstate(divide="ignore", invalid="ignore"):
             t = num_t / denom
             u = num_u / denom
         hit = (denom != 0.0) & (t > 1e-9) & (u >= 0.0) & (u <= 1.0)
         r = np.where(hit, t, np.inf).min(axis=-1)
         r[r > range_max_m] = np.inf
-        out[k0:k0 + chunk] = r
+        out[k0 : k0 + chunk] = r
     return out[0] if single else out
 
 
-def distance_to_segments(points: np.ndarray, segments: np.ndarray,
-                         chunk: int = 16384) -> np.ndarray:
+def distance_to_segments(points: np.ndarray, segments: np.ndarray, chunk: int = 16384) -> np.ndarray:
     """Distance from each point to the nearest segment.
 
     Parameters
@@ -258,15 +258,16 @@ def distance_to_segments(points: np.ndarray, segments: np.ndarray,
     ee = np.maximum((e * e).sum(axis=1), 1e-300)
     out = np.empty(len(pts))
     for i in range(0, len(pts), chunk):
-        w = pts[i:i + chunk, None, :] - a[None]                    # (p, M, 2)
+        w = pts[i : i + chunk, None, :] - a[None]  # (p, M, 2)
         u = np.clip((w * e).sum(axis=-1) / ee, 0.0, 1.0)
         d = w - u[..., None] * e
-        out[i:i + chunk] = np.sqrt((d * d).sum(axis=-1).min(axis=1))
+        out[i : i + chunk] = np.sqrt((d * d).sum(axis=-1).min(axis=1))
     return out
 
 
-def rasterise_world(world: IndoorWorld, resolution_m: float = MAP_RESOLUTION_M,
-                    margin_m: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+def rasterise_world(
+    world: IndoorWorld, resolution_m: float = MAP_RESOLUTION_M, margin_m: float = 0.5
+) -> tuple[np.ndarray, np.ndarray]:
     """Ground-truth occupancy grid of ``world``.
 
     Returns
@@ -283,12 +284,11 @@ def rasterise_world(world: IndoorWorld, resolution_m: float = MAP_RESOLUTION_M,
     h = int(round((ymax - ymin + 2 * margin_m) / resolution_m))
     gx = origin[0] + (np.arange(w) + 0.5) * resolution_m
     gy = origin[1] + (np.arange(h) + 0.5) * resolution_m
-    cx, cy = np.meshgrid(gx, gy)                                   # (H, W), row = y
+    cx, cy = np.meshgrid(gx, gy)  # (H, W), row = y
     inside = (cx > xmin) & (cx < xmax) & (cy > ymin) & (cy < ymax)
     occ = np.where(inside, 0, -1).astype(np.int8)
     pts = np.stack([cx.ravel(), cy.ravel()], axis=1)
-    near = distance_to_segments(pts, world.segments).reshape(h, w) <= 0.5 * math.sqrt(2.0) * \
-        resolution_m
+    near = distance_to_segments(pts, world.segments).reshape(h, w) <= 0.5 * math.sqrt(2.0) * resolution_m
     for bx, by, lx, wy, yaw in world.boxes:
         c, s = math.cos(yaw), math.sin(yaw)
         lx_ = c * (cx - bx) + s * (cy - by)
@@ -307,8 +307,7 @@ def _smoothstep(x: np.ndarray) -> np.ndarray:
     return x * x * (3.0 - 2.0 * x)
 
 
-def _loop_primitives(corners: np.ndarray, radii: np.ndarray,
-                     start: np.ndarray) -> np.ndarray:
+def _loop_primitives(corners: np.ndarray, radii: np.ndarray, start: np.ndarray) -> np.ndarray:
     """Closed path start -> corners[0] -> ... -> corners[-1] -> start, corners filleted.
 
     Returns ``(P, 5)`` constant-curvature pieces ``[x0, y0, theta0, curvature, length]``.
@@ -327,15 +326,14 @@ def _loop_primitives(corners: np.ndarray, radii: np.ndarray,
         arc_start, arc_end = c - d * u_in, c + d * u_out
         line_len = float(np.linalg.norm(arc_start - pos))
         if (arc_start - pos) @ u_in < 0.0:
-            raise ValueError(f'corner {i}: radius {radii[i]:.3f} m too large for its legs')
+            raise ValueError(f"corner {i}: radius {radii[i]:.3f} m too large for its legs")
         heading = math.atan2(u_in[1], u_in[0])
         pieces.append((pos[0], pos[1], heading, 0.0, line_len))
-        pieces.append((arc_start[0], arc_start[1], heading, math.copysign(1.0 / radii[i], turn),
-                       radii[i] * abs(turn)))
+        pieces.append((arc_start[0], arc_start[1], heading, math.copysign(1.0 / radii[i], turn), radii[i] * abs(turn)))
         pos = arc_end
     u = start - pos
     if u @ (start - corners[-1]) <= 0.0:
-        raise ValueError('last corner radius too large for the closing leg')
+        raise ValueError("last corner radius too large for the closing leg")
     pieces.append((pos[0], pos[1], math.atan2(u[1], u[0]), 0.0, float(np.linalg.norm(u))))
     return np.array(pieces, dtype=np.float64)
 
@@ -347,8 +345,9 @@ def _pose_on_path(pieces: np.ndarray, s: np.ndarray) -> np.ndarray:
     return p
 
 
-def plan_drive(duration_s: float, rng: np.random.Generator,
-               rate_hz: int = SIM_RATE_HZ) -> tuple[np.ndarray, np.ndarray]:
+def plan_drive(
+    duration_s: float, rng: np.random.Generator, rate_hz: int = SIM_RATE_HZ
+) -> tuple[np.ndarray, np.ndarray]:
     """True trajectory of the robot, sampled at ``rate_hz``.
 
     The loop of ``_CORNERS`` (clockwise, ~21 m, arcs of ~0.9 m radius) is driven at a cruise
@@ -364,7 +363,7 @@ def plan_drive(duration_s: float, rng: np.random.Generator,
     """
     corners = np.array(_CORNERS, dtype=np.float64)
     jitter = rng.uniform(-0.1, 0.1, size=corners.shape)
-    jitter[[0, -1], 1] = 0.0          # keep the corridor leg through the start on y = 7.5
+    jitter[[0, -1], 1] = 0.0  # keep the corridor leg through the start on y = 7.5
     corners += jitter
     radii = np.array(_RADII) + rng.uniform(-0.1, 0.05, size=len(_RADII))
     v_cruise = 0.5 * (1.0 + rng.uniform(-0.06, 0.06))
@@ -378,8 +377,7 @@ def plan_drive(duration_s: float, rng: np.random.Generator,
     t = np.arange(n, dtype=np.float64) / rate_hz
     speed = v_cruise * (1.0 + 0.05 * np.sin(2 * math.pi * t / mod_period_s + mod_phase))
     speed *= _smoothstep(t / ramp_s)
-    speed *= 1.0 - _smoothstep((t - t_stop) / ramp_s) + \
-        _smoothstep((t - t_stop - ramp_s - hold_s) / ramp_s)
+    speed *= 1.0 - _smoothstep((t - t_stop) / ramp_s) + _smoothstep((t - t_stop - ramp_s - hold_s) / ramp_s)
     s = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) / rate_hz)])
     return t, _pose_on_path(pieces, s)
 
@@ -388,9 +386,9 @@ def plan_drive(duration_s: float, rng: np.random.Generator,
 # sensors
 
 
-def simulate_odometry(poses: np.ndarray, rng: np.random.Generator,
-                      wheel_base_m: float = WHEEL_BASE_M,
-                      slip_sigma: float = 0.003) -> np.ndarray:
+def simulate_odometry(
+    poses: np.ndarray, rng: np.random.Generator, wheel_base_m: float = WHEEL_BASE_M, slip_sigma: float = 0.003
+) -> np.ndarray:
     """Wheel odometry integrated from the true motion, with systematic and random errors.
 
     The true increments ``(ds, dtheta)`` between consecutive poses become left / right wheel
@@ -420,10 +418,8 @@ def simulate_odometry(poses: np.ndarray, rng: np.random.Generator,
     mismatch = -math.copysign(rng.uniform(0.002, 0.004), scale)
     left = ds - 0.5 * wheel_base_m * dth
     right = ds + 0.5 * wheel_base_m * dth
-    left = left * (1.0 + scale - 0.5 * mismatch) + \
-        rng.normal(size=len(ds)) * slip_sigma * np.sqrt(np.abs(left))
-    right = right * (1.0 + scale + 0.5 * mismatch) + \
-        rng.normal(size=len(ds)) * slip_sigma * np.sqrt(np.abs(right))
+    left = left * (1.0 + scale - 0.5 * mismatch) + rng.normal(size=len(ds)) * slip_sigma * np.sqrt(np.abs(left))
+    right = right * (1.0 + scale + 0.5 * mismatch) + rng.normal(size=len(ds)) * slip_sigma * np.sqrt(np.abs(right))
     ds_o = 0.5 * (left + right)
     dth_o = (right - left) / wheel_base_m
     th = np.concatenate([[0.0], np.cumsum(dth_o)])
@@ -433,24 +429,26 @@ def simulate_odometry(poses: np.ndarray, rng: np.random.Generator,
     return np.stack([x, y, np.arctan2(np.sin(th), np.cos(th))], axis=1)
 
 
-def mount_pose(chain: Sequence[tuple[str, str, Sequence[float], Sequence[float]]]
-               ) -> tuple[np.ndarray, np.ndarray]:
+def mount_pose(chain: Sequence[tuple[str, str, Sequence[float], Sequence[float]]]) -> tuple[np.ndarray, np.ndarray]:
     """``(R (3, 3), t (3,))`` of the last frame of a chain of static transforms
     ``(parent, child, (x, y, z), (roll, pitch, yaw) rad)`` in the first parent (each child the
     next one's parent)."""
     rot, t = np.eye(3), np.zeros(3)
-    for k, (parent, child, xyz, rpy) in enumerate(chain):
+    for k, (parent, _child, xyz, rpy) in enumerate(chain):
         if k and parent != chain[k - 1][1]:
-            raise ValueError(f'mount chain: {parent!r} is not the previous child {chain[k - 1][1]!r}')
+            raise ValueError(f"mount chain: {parent!r} is not the previous child {chain[k - 1][1]!r}")
         r = rpy_to_matrix(np.degrees(np.asarray(rpy, dtype=np.float64)))
         t = t + rot @ np.asarray(xyz, dtype=np.float64)
         rot = rot @ r
     return rot, t
 
 
-def simulate_scans(poses: np.ndarray, segments: np.ndarray,
-                   rng: np.random.Generator, mount: tuple[np.ndarray, np.ndarray] | None = None
-                   ) -> np.ndarray:
+def simulate_scans(
+    poses: np.ndarray,
+    segments: np.ndarray,
+    rng: np.random.Generator,
+    mount: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
     """Laser ranges at ``poses``: ray cast, ``N(0, RANGE_SIGMA_M^2)`` noise, dropouts.
 
     ``mount``: the laser's ``(R, t)`` in the base frame (its scan plane horizontal: upright or
@@ -467,11 +465,13 @@ def simulate_scans(poses: np.ndarray, segments: np.ndarray,
     if mount is not None:
         rot, t = (np.asarray(v, dtype=np.float64) for v in mount)
         if abs(abs(rot[2, 2]) - 1.0) > 1e-9:
-            raise ValueError(f'the simulated laser must scan a horizontal plane, got R = {rot.tolist()}')
+            raise ValueError(f"the simulated laser must scan a horizontal plane, got R = {rot.tolist()}")
         p = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
         c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
-        poses = np.stack([p[:, 0] + c * t[0] - s * t[1], p[:, 1] + s * t[0] + c * t[1],
-                          p[:, 2] + math.atan2(rot[1, 0], rot[0, 0])], axis=-1)
+        poses = np.stack(
+            [p[:, 0] + c * t[0] - s * t[1], p[:, 1] + s * t[0] + c * t[1], p[:, 2] + math.atan2(rot[1, 0], rot[0, 0])],
+            axis=-1,
+        )
         angles = math.copysign(1.0, rot[2, 2]) * angles
     r = ray_cast(poses, angles, segments, RANGE_MAX_M).reshape(-1, N_BEAMS)
     r = r + RANGE_SIGMA_M * rng.normal(size=r.shape)
@@ -503,11 +503,15 @@ class SimResult:
     odom_drift_m: float
 
 
-def simulate_indoor(out_dir: str | os.PathLike, seed: int = 0, duration_s: float = 60.0,
-                    odom_rate_hz: int = 20, overwrite: bool = False,
-                    storage: str = 'mcap',
-                    laser_mount: Sequence[tuple[str, str, Sequence[float], Sequence[float]]] | None = None
-                    ) -> SimResult:
+def simulate_indoor(
+    out_dir: str | os.PathLike,
+    seed: int = 0,
+    duration_s: float = 60.0,
+    odom_rate_hz: int = 20,
+    overwrite: bool = False,
+    storage: str = "mcap",
+    laser_mount: Sequence[tuple[str, str, Sequence[float], Sequence[float]]] | None = None,
+) -> SimResult:
     """Simulate the office drive and write the sample bag, ground truth and map.
 
     Writes ``out_dir/sample_indoor`` (rosbag2: ``/scan`` ``sensor_msgs/LaserScan`` frame
@@ -535,19 +539,18 @@ def simulate_indoor(out_dir: str | os.PathLike, seed: int = 0, duration_s: float
         ``base_link -> laser`` identity.
     """
     if not (isinstance(duration_s, (int, float)) and 0.1 <= duration_s <= 3600.0):
-        raise ValueError(f'duration_s must be in [0.1, 3600] s, got {duration_s!r}')
+        raise ValueError(f"duration_s must be in [0.1, 3600] s, got {duration_s!r}")
     if odom_rate_hz not in (10, 20, 50, 100):
-        raise ValueError(f'odom_rate_hz must be 10, 20, 50 or 100, got {odom_rate_hz!r}')
+        raise ValueError(f"odom_rate_hz must be 10, 20, 50 or 100, got {odom_rate_hz!r}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     bag_path = out / BAG_NAME
     if bag_path.exists() and overwrite:
-        if not (bag_path.is_dir() and (bag_path / 'metadata.yaml').is_file()):
-            raise BagError(f'{bag_path}: exists and is not a rosbag2 directory; not removing it')
+        if not (bag_path.is_dir() and (bag_path / "metadata.yaml").is_file()):
+            raise BagError(f"{bag_path}: exists and is not a rosbag2 directory; not removing it")
         shutil.rmtree(bag_path)
 
-    drive_rng, odom_rng, laser_rng = (np.random.default_rng(s) for s in
-                                      np.random.SeedSequence(int(seed)).spawn(3))
+    drive_rng, odom_rng, laser_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(3))
     world = office_world()
     n_scans = int(round(duration_s * SCAN_RATE_HZ))
     scan_step = SIM_RATE_HZ // SCAN_RATE_HZ
@@ -557,15 +560,24 @@ def simulate_indoor(out_dir: str | os.PathLike, seed: int = 0, duration_s: float
     scan_idx = np.arange(0, len(t_s), scan_step)
     chain = list(laser_mount) if laser_mount else [(BASE_FRAME, LASER_FRAME, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))]
     if chain[0][0] != BASE_FRAME:
-        raise ValueError(f'laser_mount must start at {BASE_FRAME!r}, got {chain[0][0]!r}')
+        raise ValueError(f"laser_mount must start at {BASE_FRAME!r}, got {chain[0][0]!r}")
     mount = mount_pose(chain) if laser_mount else None
     laser_frame = chain[-1][1]
     ranges = simulate_scans(truth[scan_idx], world.segments, laser_rng, mount)
     stamps_ns = EPOCH_NS + np.arange(len(t_s), dtype=np.int64) * (1_000_000_000 // SIM_RATE_HZ)
     transforms = [(parent, child, tuple(float(v) for v in xyz), rpy_to_quat(rpy)) for parent, child, xyz, rpy in chain]
-    n_odom = write_sim_bag(bag_path, storage, stamps_ns, odom, ranges, odom_step, scan_step, transforms,
-                           laser_frame, f'indoor seed={int(seed)} duration_s={n_scans / SCAN_RATE_HZ:g} '
-                           f'odom_rate_hz={odom_rate_hz}')
+    n_odom = write_sim_bag(
+        bag_path,
+        storage,
+        stamps_ns,
+        odom,
+        ranges,
+        odom_step,
+        scan_step,
+        transforms,
+        laser_frame,
+        f"indoor seed={int(seed)} duration_s={n_scans / SCAN_RATE_HZ:g} odom_rate_hz={odom_rate_hz}",
+    )
 
     gt_path = out / GROUND_TRUTH_NAME
     write_tum(gt_path, stamps_ns[scan_idx] / 1e9, truth[scan_idx])
@@ -573,15 +585,30 @@ def simulate_indoor(out_dir: str | os.PathLike, seed: int = 0, duration_s: float
     map_yaml = write_map(out, occ, MAP_RESOLUTION_M, origin, name=MAP_NAME)
     last = scan_idx[-1]
     return SimResult(
-        bag_path=bag_path, ground_truth_path=gt_path, map_yaml_path=Path(map_yaml),
-        seed=int(seed), duration_s=n_scans / SCAN_RATE_HZ, n_scans=len(scan_idx),
+        bag_path=bag_path,
+        ground_truth_path=gt_path,
+        map_yaml_path=Path(map_yaml),
+        seed=int(seed),
+        duration_s=n_scans / SCAN_RATE_HZ,
+        n_scans=len(scan_idx),
         n_odom=n_odom,
         path_length_m=float(np.hypot(*np.diff(truth[:, :2], axis=0).T).sum()),
-        odom_drift_m=float(np.hypot(*(odom[last, :2] - truth[last, :2]))))
+        odom_drift_m=float(np.hypot(*(odom[last, :2] - truth[last, :2]))),
+    )
 
 
-def write_sim_bag(bag_path: Path, storage: str, stamps_ns: np.ndarray, odom: np.ndarray, ranges: np.ndarray,
-                  odom_step: int, scan_step: int, transforms: list, laser_frame: str, sim_tag: str) -> int:
+def write_sim_bag(
+    bag_path: Path,
+    storage: str,
+    stamps_ns: np.ndarray,
+    odom: np.ndarray,
+    ranges: np.ndarray,
+    odom_step: int,
+    scan_step: int,
+    transforms: list,
+    laser_frame: str,
+    sim_tag: str,
+) -> int:
     """A simulated drive as a rosbag2: /tf_static (`transforms`: (parent, child, xyz, quat)),
     /odom every `odom_step`-th sample of `odom` (twist from its differences), /scan every
     `scan_step`-th (`ranges` one row per scan); custom data ``pf_slam.sim`` = `sim_tag`.
@@ -592,23 +619,32 @@ def write_sim_bag(bag_path: Path, storage: str, stamps_ns: np.ndarray, odom: np.
     twist_v = np.concatenate([[0.0], np.hypot(*np.diff(odom[:, :2], axis=0).T) / dt])
     n_odom = 0
     with open_writer(bag_path, storage=storage) as bag:
-        bag.add_connection(TF_STATIC_TOPIC, 'tf2_msgs/msg/TFMessage')
-        bag.add_connection(ODOM_TOPIC, 'nav_msgs/msg/Odometry')
-        bag.add_connection(SCAN_TOPIC, 'sensor_msgs/msg/LaserScan')
-        bag.set_custom_data('pf_slam.sim', sim_tag)
+        bag.add_connection(TF_STATIC_TOPIC, "tf2_msgs/msg/TFMessage")
+        bag.add_connection(ODOM_TOPIC, "nav_msgs/msg/Odometry")
+        bag.add_connection(SCAN_TOPIC, "sensor_msgs/msg/LaserScan")
+        bag.set_custom_data("pf_slam.sim", sim_tag)
         t0 = int(stamps_ns[0])
         bag.write(TF_STATIC_TOPIC, t0, tf_static(t0, transforms))
         for i in range(len(stamps_ns)):
             stamp = int(stamps_ns[i])
             if i % odom_step == 0:
-                bag.write(ODOM_TOPIC, stamp, odometry(
-                    stamp, ODOM_FRAME, BASE_FRAME, odom[i], (twist_v[i], twist_w[i])))
+                bag.write(ODOM_TOPIC, stamp, odometry(stamp, ODOM_FRAME, BASE_FRAME, odom[i], (twist_v[i], twist_w[i])))
                 n_odom += 1
             if i % scan_step == 0:
-                bag.write(SCAN_TOPIC, stamp, laser_scan(
-                    stamp, laser_frame, ANGLE_MIN_RAD, ANGLE_INCREMENT_RAD,
-                    ranges[i // scan_step], RANGE_MIN_M, RANGE_MAX_M,
-                    scan_time=1.0 / SCAN_RATE_HZ))
+                bag.write(
+                    SCAN_TOPIC,
+                    stamp,
+                    laser_scan(
+                        stamp,
+                        laser_frame,
+                        ANGLE_MIN_RAD,
+                        ANGLE_INCREMENT_RAD,
+                        ranges[i // scan_step],
+                        RANGE_MIN_M,
+                        RANGE_MAX_M,
+                        scan_time=1.0 / SCAN_RATE_HZ,
+                    ),
+                )
     return n_odom
 
 
@@ -618,38 +654,43 @@ def write_sim_bag(bag_path: Path, storage: str, stamps_ns: np.ndarray, odom: np.
 
 def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Add the simulator's options to ``parser`` (for ``pf-slam simulate-indoor``)."""
-    parser.add_argument('--out', default='bags', help='output directory (default: bags)')
-    parser.add_argument('--seed', type=int, default=0, help='random seed (default: 0)')
-    parser.add_argument('--duration', type=float, default=60.0,
-                        help='simulated seconds (default: 60)')
-    parser.add_argument('--odom-rate', type=int, default=20, choices=(10, 20, 50, 100),
-                        help='odometry rate in Hz (default: 20)')
-    parser.add_argument('--force', action='store_true',
-                        help='replace an existing sample_indoor bag in --out')
+    parser.add_argument("--out", default="bags", help="output directory (default: bags)")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    parser.add_argument("--duration", type=float, default=60.0, help="simulated seconds (default: 60)")
+    parser.add_argument(
+        "--odom-rate", type=int, default=20, choices=(10, 20, 50, 100), help="odometry rate in Hz (default: 20)"
+    )
+    parser.add_argument("--force", action="store_true", help="replace an existing sample_indoor bag in --out")
     return parser
 
 
 def build_parser() -> argparse.ArgumentParser:
     """Stand-alone parser of ``python -m pf_slam_tools.sim.indoor``."""
-    return add_arguments(argparse.ArgumentParser(
-        prog='python -m pf_slam_tools.sim.indoor',
-        description='Write the seeded indoor sample bag, its ground truth and map.'))
+    return add_arguments(
+        argparse.ArgumentParser(
+            prog="python -m pf_slam_tools.sim.indoor",
+            description="Write the seeded indoor sample bag, its ground truth and map.",
+        )
+    )
 
 
 def run_args(args: argparse.Namespace) -> int:
     """Run the simulator from parsed ``add_arguments`` options; prints a summary."""
     try:
-        res = simulate_indoor(args.out, seed=args.seed, duration_s=args.duration,
-                              odom_rate_hz=args.odom_rate, overwrite=args.force)
+        res = simulate_indoor(
+            args.out, seed=args.seed, duration_s=args.duration, odom_rate_hz=args.odom_rate, overwrite=args.force
+        )
     except (BagError, ValueError) as exc:
-        print(f'simulate-indoor: error: {exc}', file=sys.stderr)
+        print(f"simulate-indoor: error: {exc}", file=sys.stderr)
         return 2
     size = sum(f.stat().st_size for f in res.bag_path.iterdir() if f.is_file())
-    print(f'{res.bag_path}: {res.n_scans} scans, {res.n_odom} odometry messages, '
-          f'{res.duration_s:g} s, {size} bytes\n'
-          f'{res.ground_truth_path}\n{res.map_yaml_path}\n'
-          f'path {res.path_length_m:.1f} m, dead-reckoning drift at the end '
-          f'{res.odom_drift_m:.2f} m')
+    print(
+        f"{res.bag_path}: {res.n_scans} scans, {res.n_odom} odometry messages, "
+        f"{res.duration_s:g} s, {size} bytes\n"
+        f"{res.ground_truth_path}\n{res.map_yaml_path}\n"
+        f"path {res.path_length_m:.1f} m, dead-reckoning drift at the end "
+        f"{res.odom_drift_m:.2f} m"
+    )
     return 0
 
 
@@ -658,5 +699,5 @@ def main(argv: Sequence[str] | None = None) -> int:
     return run_args(build_parser().parse_args(argv))
 
 
-if __name__ == '__main__':
+if __name__ == "__main__":
     sys.exit(main())

@@ -15,6 +15,7 @@ slip); the seed draws the drive's details, the odometry errors and the laser noi
 
 Everything is in the start frame (the robot's true start pose is the origin).
 """
+
 from __future__ import annotations
 
 import math
@@ -27,7 +28,7 @@ from .floor import CORRIDOR_M, floor_world
 from .indoor import SCAN_RATE_HZ, SIM_RATE_HZ, IndoorWorld, _box_corners, _loop_primitives, simulate_odometry
 from .paths import pose_on_path
 
-__all__ = ['SimDrive', 'WORLDS', 'corridors_world', 'simulate_world']
+__all__ = ["SimDrive", "WORLDS", "corridors_world", "simulate_world"]
 
 
 @dataclass
@@ -67,7 +68,7 @@ _CORR_Y = (1.2, 10.8, 20.4, 30.0)
 _CORR_W = 2.4
 _SPINE_W = 2.4
 _ROOM_W = 4.0
-_LEN = 2 * 2.4 + 14 * 4.0   # 60.8 m: 14 rooms per row
+_LEN = 2 * 2.4 + 14 * 4.0  # 60.8 m: 14 rooms per row
 _DOOR_W = 1.0
 
 
@@ -84,17 +85,17 @@ def corridors_world() -> IndoorWorld:
     xs = xa + _ROOM_W * np.arange(n_rooms + 1)
     xb = float(xs[-1])
     for k in range(len(_CORR_Y) - 1):
-        b0, b1 = _CORR_Y[k] + h, _CORR_Y[k + 1] - h       # the block between corridor k and k+1
+        b0, b1 = _CORR_Y[k] + h, _CORR_Y[k + 1] - h  # the block between corridor k and k+1
         mid = 0.5 * (b0 + b1)
         centres = list(0.5 * (xs[:-1] + xs[1:]))
-        segs += _hwall(b0, xa, xb, centres, _DOOR_W)       # south rooms open onto corridor k
-        segs += _hwall(b1, xa, xb, centres, _DOOR_W)       # north rooms onto corridor k+1
+        segs += _hwall(b0, xa, xb, centres, _DOOR_W)  # south rooms open onto corridor k
+        segs += _hwall(b1, xa, xb, centres, _DOOR_W)  # north rooms onto corridor k+1
         segs.append((xa, b0, xa, b1))
         segs.append((xb, b0, xb, b1))
-        segs.append((xa, mid, xb, mid))                    # back walls of both rows
+        segs.append((xa, mid, xb, mid))  # back walls of both rows
         for x in xs[1:-1]:
-            segs.append((x, b0, x, b1))                    # partitions
-        for c in centres:                                  # the same desk in every room
+            segs.append((x, b0, x, b1))  # partitions
+        for c in centres:  # the same desk in every room
             boxes.append((c + 0.9, mid - 1.2, 1.2, 0.6, 0.0))
             boxes.append((c - 0.9, mid + 1.2, 1.2, 0.6, 0.0))
     # a few pillars in the spines (the only features that are not repeated)
@@ -112,8 +113,7 @@ def _shift(world: IndoorWorld, dx: float, dy: float) -> IndoorWorld:
     return IndoorWorld(segments=world.segments + s, boxes=b, bounds=world.bounds + s)
 
 
-def _drive(pieces: np.ndarray, speed: float, laps: float, rng: np.random.Generator,
-           weave_m: float) -> np.ndarray:
+def _drive(pieces: np.ndarray, speed: float, laps: float, rng: np.random.Generator, weave_m: float) -> np.ndarray:
     """Poses at SIM_RATE_HZ along a closed path: ramp up, cruise at ``speed`` (seeded +-5 %,
     slow +-5 % modulation), ``laps`` times around, a seeded sideways weave."""
     total = float(pieces[:, 4].sum()) * laps
@@ -129,7 +129,7 @@ def _drive(pieces: np.ndarray, speed: float, laps: float, rng: np.random.Generat
     weave = weave_m * np.sin(2 * math.pi * s / w_period + w_phase) * np.minimum(1.0, s / 5.0)
     p[:, 0] -= np.sin(p[:, 2]) * weave
     p[:, 1] += np.cos(p[:, 2]) * weave
-    p -= p[0]   # start exactly at the origin
+    p -= p[0]  # start exactly at the origin
     p[:, 2] = np.arctan2(np.sin(p[:, 2]), np.cos(p[:, 2]))
     return p
 
@@ -139,12 +139,16 @@ def _scan(truth: np.ndarray, world: IndoorWorld, rng: np.random.Generator) -> np
     seg = world.segments
     out = np.empty((len(truth), indoor.N_BEAMS), dtype=np.float32)
     for k0 in range(0, len(truth), 50):
-        pk = truth[k0:k0 + 50]
+        pk = truth[k0 : k0 + 50]
         lo = pk[:, :2].min(axis=0) - indoor.RANGE_MAX_M - 1
         hi = pk[:, :2].max(axis=0) + indoor.RANGE_MAX_M + 1
-        near = ((np.maximum(seg[:, 0], seg[:, 2]) >= lo[0]) & (np.minimum(seg[:, 0], seg[:, 2]) <= hi[0])
-                & (np.maximum(seg[:, 1], seg[:, 3]) >= lo[1]) & (np.minimum(seg[:, 1], seg[:, 3]) <= hi[1]))
-        out[k0:k0 + 50] = indoor.simulate_scans(pk, seg[near], rng)
+        near = (
+            (np.maximum(seg[:, 0], seg[:, 2]) >= lo[0])
+            & (np.minimum(seg[:, 0], seg[:, 2]) <= hi[0])
+            & (np.maximum(seg[:, 1], seg[:, 3]) >= lo[1])
+            & (np.minimum(seg[:, 1], seg[:, 3]) <= hi[1])
+        )
+        out[k0 : k0 + 50] = indoor.simulate_scans(pk, seg[near], rng)
     return out
 
 
@@ -164,7 +168,7 @@ def _corridors(rng: np.random.Generator) -> tuple[IndoorWorld, np.ndarray]:
 
 def _ring(rng: np.random.Generator) -> tuple[IndoorWorld, np.ndarray]:
     L, W, c = 300.0, 150.0, CORRIDOR_M
-    start = np.array([20.0, 0.0])    # floor_world's frame: the ring's south-west corner is (0, 0)
+    start = np.array([20.0, 0.0])  # floor_world's frame: the ring's south-west corner is (0, 0)
     corners = np.array([(L - c, 0.0), (L - c, W - c), (0.0, W - c), (0.0, 0.0)])
     pieces = _loop_primitives(corners - start, np.full(4, 2.0), np.zeros(2))
     return _shift(floor_world(L, W), -start[0], -start[1]), _drive(pieces, 3.0, 1.03, rng, 0.3)
@@ -182,6 +186,13 @@ def simulate_world(name: str, seed: int) -> SimDrive:
     world, truth = WORLDS[name](drive_rng)
     odom = simulate_odometry(truth, odom_rng)
     idx = np.arange(0, len(truth), SIM_RATE_HZ // SCAN_RATE_HZ)
-    return SimDrive(name=name, seed=int(seed), truth=truth[idx], odom=odom[idx],
-                    ranges=_scan(truth[idx], world, laser_rng), angles=indoor.beam_angles(),
-                    range_max=indoor.RANGE_MAX_M, world=world)
+    return SimDrive(
+        name=name,
+        seed=int(seed),
+        truth=truth[idx],
+        odom=odom[idx],
+        ranges=_scan(truth[idx], world, laser_rng),
+        angles=indoor.beam_angles(),
+        range_max=indoor.RANGE_MAX_M,
+        world=world,
+    )

@@ -66,8 +66,7 @@ from __future__ import annotations
 
 from .config import BAYER_CODES, TextureConfig
 from .depth import DepthCamera, DepthFrameResult, DepthTexturer
-from .evaluation import (PairMeasurement, colour_error, measure_stereo_pair, road_region_mask,
-                         visible_ground_mask)
+from .evaluation import PairMeasurement, colour_error, measure_stereo_pair, road_region_mask, visible_ground_mask
 from .ground import Plane, fit_ground_plane
 from .images import debayer, detect_rectified, grey
 from .map import TextureMap, north_up_bgr, overlay_occupancy
@@ -75,26 +74,26 @@ from .rig import StereoRig
 from .texturer import FrameResult, StereoTexturer, interpolate_poses
 
 __all__ = [
-    'BAYER_CODES',
-    'DepthCamera',
-    'DepthFrameResult',
-    'DepthTexturer',
-    'FrameResult',
-    'PairMeasurement',
-    'Plane',
-    'StereoRig',
-    'StereoTexturer',
-    'TextureConfig',
-    'TextureMap',
-    'colour_error',
-    'debayer',
-    'detect_rectified',
-    'fit_ground_plane',
-    'grey',
-    'interpolate_poses',
-    'measure_stereo_pair',
-    'north_up_bgr',
-    'overlay_occupancy',
-    'road_region_mask',
-    'visible_ground_mask',
+    "BAYER_CODES",
+    "DepthCamera",
+    "DepthFrameResult",
+    "DepthTexturer",
+    "FrameResult",
+    "PairMeasurement",
+    "Plane",
+    "StereoRig",
+    "StereoTexturer",
+    "TextureConfig",
+    "TextureMap",
+    "colour_error",
+    "debayer",
+    "detect_rectified",
+    "fit_ground_plane",
+    "grey",
+    "interpolate_poses",
+    "measure_stereo_pair",
+    "north_up_bgr",
+    "overlay_occupancy",
+    "road_region_mask",
+    "visible_ground_mask",
 ]

@@ -11,17 +11,21 @@ from ..config import _check_finite, _check_int, _check_nonneg, _check_pos, _Conf
 #: ROS image encoding -> OpenCV conversion to RGB (OpenCV names a Bayer pattern by the colours
 #: of the second row's second and third pixels: ``rggb`` is OpenCV's ``BayerBG``).
 BAYER_CODES = {
-    'bayer_rggb8': cv2.COLOR_BAYER_BG2RGB,
-    'bayer_bggr8': cv2.COLOR_BAYER_RG2RGB,
-    'bayer_gbrg8': cv2.COLOR_BAYER_GR2RGB,
-    'bayer_grbg8': cv2.COLOR_BAYER_GB2RGB,
+    "bayer_rggb8": cv2.COLOR_BAYER_BG2RGB,
+    "bayer_bggr8": cv2.COLOR_BAYER_RG2RGB,
+    "bayer_gbrg8": cv2.COLOR_BAYER_GR2RGB,
+    "bayer_grbg8": cv2.COLOR_BAYER_GB2RGB,
 }
-_BAYER_CV = {'bayer_rggb8': 'BG', 'bayer_bggr8': 'RG', 'bayer_gbrg8': 'GR', 'bayer_grbg8': 'GB'}
-_DEMOSAIC = {'bilinear': '', 'ea': '_EA', 'vng': '_VNG'}
-_PREFILTERS = ('none', 'clahe', 'equalize')
-_SGBM_MODES = {'sgbm': cv2.STEREO_SGBM_MODE_SGBM, '3way': cv2.STEREO_SGBM_MODE_SGBM_3WAY,
-               'hh': cv2.STEREO_SGBM_MODE_HH, 'hh4': cv2.STEREO_SGBM_MODE_HH4}
-_RECTIFY = ('auto', 'yes', 'no')
+_BAYER_CV = {"bayer_rggb8": "BG", "bayer_bggr8": "RG", "bayer_gbrg8": "GR", "bayer_grbg8": "GB"}
+_DEMOSAIC = {"bilinear": "", "ea": "_EA", "vng": "_VNG"}
+_PREFILTERS = ("none", "clahe", "equalize")
+_SGBM_MODES = {
+    "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
+    "3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY,
+    "hh": cv2.STEREO_SGBM_MODE_HH,
+    "hh4": cv2.STEREO_SGBM_MODE_HH4,
+}
+_RECTIFY = ("auto", "yes", "no")
 
 
 # --------------------------------------------------------------------------------------------
@@ -139,9 +143,9 @@ class TextureConfig(_ConfigBase):
         Depth mode: valid depth (m); the Kinect v2 measures 0.4 .. 4.5 m.
     """
 
-    rectify: str = 'auto'
-    demosaic: str = 'vng'
-    sgbm_mode: str = 'hh4'
+    rectify: str = "auto"
+    demosaic: str = "vng"
+    sgbm_mode: str = "hh4"
     downscale: int = 2
     num_disparities: int = 128
     block_size: int = 7
@@ -152,7 +156,7 @@ class TextureConfig(_ConfigBase):
     speckle_window: int = 100
     speckle_range: int = 2
     pre_filter_cap: int = 31
-    prefilter: str = 'none'
+    prefilter: str = "none"
     min_range_m: float = 3.0
     max_range_m: float = 20.0
     max_lateral_m: float = 12.0
@@ -179,63 +183,64 @@ class TextureConfig(_ConfigBase):
 
     def __post_init__(self) -> None:
         if self.rectify not in _RECTIFY:
-            raise ValueError(f'rectify must be one of {_RECTIFY}, got {self.rectify!r}')
+            raise ValueError(f"rectify must be one of {_RECTIFY}, got {self.rectify!r}")
         if self.demosaic not in _DEMOSAIC:
-            raise ValueError(f'demosaic must be one of {tuple(_DEMOSAIC)}, got {self.demosaic!r}')
+            raise ValueError(f"demosaic must be one of {tuple(_DEMOSAIC)}, got {self.demosaic!r}")
         if self.sgbm_mode not in _SGBM_MODES:
-            raise ValueError(f'sgbm_mode must be one of {tuple(_SGBM_MODES)}, got '
-                             f'{self.sgbm_mode!r}')
+            raise ValueError(f"sgbm_mode must be one of {tuple(_SGBM_MODES)}, got {self.sgbm_mode!r}")
         if self.prefilter not in _PREFILTERS:
-            raise ValueError(f'prefilter must be one of {_PREFILTERS}, got {self.prefilter!r}')
-        _check_int('downscale', self.downscale, 1)
+            raise ValueError(f"prefilter must be one of {_PREFILTERS}, got {self.prefilter!r}")
+        _check_int("downscale", self.downscale, 1)
         if self.downscale not in (1, 2, 4):
-            raise ValueError(f'downscale must be 1, 2 or 4, got {self.downscale!r}')
-        _check_int('num_disparities', self.num_disparities, 16)
+            raise ValueError(f"downscale must be 1, 2 or 4, got {self.downscale!r}")
+        _check_int("num_disparities", self.num_disparities, 16)
         if self.num_disparities % (16 * self.downscale):
-            raise ValueError(f'num_disparities must be a multiple of 16 * downscale = '
-                             f'{16 * self.downscale}, got {self.num_disparities!r}')
-        _check_int('block_size', self.block_size, 1)
+            raise ValueError(
+                f"num_disparities must be a multiple of 16 * downscale = "
+                f"{16 * self.downscale}, got {self.num_disparities!r}"
+            )
+        _check_int("block_size", self.block_size, 1)
         if self.block_size % 2 == 0:
-            raise ValueError(f'block_size must be odd, got {self.block_size!r}')
-        _check_pos('p1', self.p1)
-        _check_pos('p2', self.p2)
+            raise ValueError(f"block_size must be odd, got {self.block_size!r}")
+        _check_pos("p1", self.p1)
+        _check_pos("p2", self.p2)
         if self.p2 <= self.p1:
-            raise ValueError(f'p2 must be > p1, got p1={self.p1!r}, p2={self.p2!r}')
-        _check_int('uniqueness_ratio', self.uniqueness_ratio, 0)
-        _check_int('disp12_max_diff', self.disp12_max_diff, -1)
-        _check_int('speckle_window', self.speckle_window, 0)
-        _check_int('speckle_range', self.speckle_range, 0)
-        _check_int('pre_filter_cap', self.pre_filter_cap, 1)
+            raise ValueError(f"p2 must be > p1, got p1={self.p1!r}, p2={self.p2!r}")
+        _check_int("uniqueness_ratio", self.uniqueness_ratio, 0)
+        _check_int("disp12_max_diff", self.disp12_max_diff, -1)
+        _check_int("speckle_window", self.speckle_window, 0)
+        _check_int("speckle_range", self.speckle_range, 0)
+        _check_int("pre_filter_cap", self.pre_filter_cap, 1)
         if self.pre_filter_cap > 63:
-            raise ValueError(f'pre_filter_cap must be <= 63, got {self.pre_filter_cap!r}')
-        _check_nonneg('min_range_m', self.min_range_m)
-        _check_pos('max_range_m', self.max_range_m)
+            raise ValueError(f"pre_filter_cap must be <= 63, got {self.pre_filter_cap!r}")
+        _check_nonneg("min_range_m", self.min_range_m)
+        _check_pos("max_range_m", self.max_range_m)
         if self.max_range_m <= self.min_range_m:
-            raise ValueError(f'max_range_m must be > min_range_m, got {self.max_range_m!r}')
-        _check_pos('max_lateral_m', self.max_lateral_m)
-        _check_int('row_margin_px', self.row_margin_px, 0)
-        _check_pos('height_tol_m', self.height_tol_m)
-        _check_int('obstacle_margin_px', self.obstacle_margin_px, 0)
+            raise ValueError(f"max_range_m must be > min_range_m, got {self.max_range_m!r}")
+        _check_pos("max_lateral_m", self.max_lateral_m)
+        _check_int("row_margin_px", self.row_margin_px, 0)
+        _check_pos("height_tol_m", self.height_tol_m)
+        _check_int("obstacle_margin_px", self.obstacle_margin_px, 0)
         if not isinstance(self.plane_fit, bool):
-            raise ValueError(f'plane_fit must be a bool, got {self.plane_fit!r}')
+            raise ValueError(f"plane_fit must be a bool, got {self.plane_fit!r}")
         if not isinstance(self.fill_gaps, bool):
-            raise ValueError(f'fill_gaps must be a bool, got {self.fill_gaps!r}')
+            raise ValueError(f"fill_gaps must be a bool, got {self.fill_gaps!r}")
         if not isinstance(self.snap_to_plane, bool):
-            raise ValueError(f'snap_to_plane must be a bool, got {self.snap_to_plane!r}')
-        _check_int('ransac_iterations', self.ransac_iterations, 1)
-        _check_pos('ransac_tol_m', self.ransac_tol_m)
-        _check_int('ransac_max_points', self.ransac_max_points, 3)
-        _check_pos('plane_max_tilt_deg', self.plane_max_tilt_deg)
-        _check_pos('plane_max_offset_m', self.plane_max_offset_m)
-        _check_int('pixel_stride_max', self.pixel_stride_max, 1)
-        _check_int('cell_samples', self.cell_samples, 1)
-        _check_pos('cell_m', self.cell_m)
-        _check_int('tile_cells', self.tile_cells, 8)
-        _check_int('max_tiles', self.max_tiles, 1)
-        _check_int('seed', self.seed, 0)
-        _check_finite('cell_m', self.cell_m)
-        _check_int('depth_stride', self.depth_stride, 1)
-        _check_nonneg('depth_min_m', self.depth_min_m)
-        _check_pos('depth_max_m', self.depth_max_m)
+            raise ValueError(f"snap_to_plane must be a bool, got {self.snap_to_plane!r}")
+        _check_int("ransac_iterations", self.ransac_iterations, 1)
+        _check_pos("ransac_tol_m", self.ransac_tol_m)
+        _check_int("ransac_max_points", self.ransac_max_points, 3)
+        _check_pos("plane_max_tilt_deg", self.plane_max_tilt_deg)
+        _check_pos("plane_max_offset_m", self.plane_max_offset_m)
+        _check_int("pixel_stride_max", self.pixel_stride_max, 1)
+        _check_int("cell_samples", self.cell_samples, 1)
+        _check_pos("cell_m", self.cell_m)
+        _check_int("tile_cells", self.tile_cells, 8)
+        _check_int("max_tiles", self.max_tiles, 1)
+        _check_int("seed", self.seed, 0)
+        _check_finite("cell_m", self.cell_m)
+        _check_int("depth_stride", self.depth_stride, 1)
+        _check_nonneg("depth_min_m", self.depth_min_m)
+        _check_pos("depth_max_m", self.depth_max_m)
         if self.depth_max_m <= self.depth_min_m:
-            raise ValueError(f'depth_max_m must be > depth_min_m, got {self.depth_max_m!r}')
+            raise ValueError(f"depth_max_m must be > depth_min_m, got {self.depth_max_m!r}")

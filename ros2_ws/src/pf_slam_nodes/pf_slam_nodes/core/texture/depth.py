@@ -20,6 +20,7 @@ Per depth + RGB pair (:meth:`DepthTexturer.process`):
    (``x, y``) and moved into the world with the 2D pose at the image stamp.
 5. **Accumulation**: :class:`~.map.TextureMap` (running mean per cell), the same as stereo.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -90,8 +91,7 @@ class DepthTexturer:
         The kinematic floor's height in the base frame (0: base_link on the ground).
     """
 
-    def __init__(self, camera: DepthCamera, cfg: TextureConfig | None = None,
-                 floor_height_m: float = 0.0) -> None:
+    def __init__(self, camera: DepthCamera, cfg: TextureConfig | None = None, floor_height_m: float = 0.0) -> None:
         self.camera = camera
         self.cfg = cfg or TextureConfig()
         self.floor = float(floor_height_m)
@@ -118,16 +118,25 @@ class DepthTexturer:
         if not cfg.plane_fit:
             return nominal, False
         near = np.abs(p[:, 2] - self.floor) < cfg.plane_max_offset_m + cfg.ransac_tol_m
-        plane, _ = fit_ground_plane(p[near], cfg.ransac_iterations, cfg.ransac_tol_m,
-                                    cfg.ransac_max_points, cfg.plane_max_tilt_deg, self.rng)
-        if plane is None or plane.tilt_deg > cfg.plane_max_tilt_deg \
-                or abs(-plane.c / plane.normal[2] - self.floor) > cfg.plane_max_offset_m:
+        plane, _ = fit_ground_plane(
+            p[near], cfg.ransac_iterations, cfg.ransac_tol_m, cfg.ransac_max_points, cfg.plane_max_tilt_deg, self.rng
+        )
+        if (
+            plane is None
+            or plane.tilt_deg > cfg.plane_max_tilt_deg
+            or abs(-plane.c / plane.normal[2] - self.floor) > cfg.plane_max_offset_m
+        ):
             return nominal, False
         return plane, True
 
-    def process(self, depth_mm: np.ndarray, rgb: np.ndarray, base_from_rgb: tuple[np.ndarray, np.ndarray],
-                pose: np.ndarray | None = None,
-                rgb_from_depth: tuple[np.ndarray, np.ndarray] | None = None) -> DepthFrameResult:
+    def process(
+        self,
+        depth_mm: np.ndarray,
+        rgb: np.ndarray,
+        base_from_rgb: tuple[np.ndarray, np.ndarray],
+        pose: np.ndarray | None = None,
+        rgb_from_depth: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> DepthFrameResult:
         """One pair -> floor samples.
 
         Parameters
@@ -153,8 +162,9 @@ class DepthTexturer:
         z = d[rows, cols].astype(np.float64) * 1e-3
         ok = (z >= cfg.depth_min_m) & (z <= cfg.depth_max_m)
         p_d = rays[:, ok] * z[ok]
-        r_cd, t_cd = (cam.rot, cam.t) if rgb_from_depth is None else (np.asarray(a, dtype=np.float64)
-                                                                        for a in rgb_from_depth)
+        r_cd, t_cd = (
+            (cam.rot, cam.t) if rgb_from_depth is None else (np.asarray(a, dtype=np.float64) for a in rgb_from_depth)
+        )
         p_c = r_cd @ p_d + np.reshape(t_cd, (3, 1))  # the RGB camera's optical frame
         kr = cam.k_rgb
         h, w = rgb.shape[:2]
@@ -180,5 +190,13 @@ class DepthTexturer:
             xy_w = np.zeros((0, 2))
         offset = (-plane.c / plane.normal[2] - self.floor) if fitted else float("nan")
         t2 = time.perf_counter()
-        return DepthFrameResult(xy_w, xy_b, colours, plane, fitted, float(offset), int(p_b.shape[0]),
-                                {"points": 1e3 * (t1 - t0), "ground": 1e3 * (t2 - t1), "total": 1e3 * (t2 - t0)})
+        return DepthFrameResult(
+            xy_w,
+            xy_b,
+            colours,
+            plane,
+            fitted,
+            float(offset),
+            int(p_b.shape[0]),
+            {"points": 1e3 * (t1 - t0), "ground": 1e3 * (t2 - t1), "total": 1e3 * (t2 - t0)},
+        )

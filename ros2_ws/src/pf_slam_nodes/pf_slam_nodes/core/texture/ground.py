@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Optional
 
 import numpy as np
 
@@ -37,10 +36,14 @@ class Plane:
         return float(np.degrees(np.arccos(np.clip(self.normal[2], -1.0, 1.0))))
 
 
-def fit_ground_plane(points: np.ndarray, iterations: int = 64, tol_m: float = 0.05,
-                     max_points: int = 4000, max_tilt_deg: float = 10.0,
-                     rng: Optional[np.random.Generator] = None,
-                     ) -> tuple[Optional[Plane], np.ndarray]:
+def fit_ground_plane(
+    points: np.ndarray,
+    iterations: int = 64,
+    tol_m: float = 0.05,
+    max_points: int = 4000,
+    max_tilt_deg: float = 10.0,
+    rng: np.random.Generator | None = None,
+) -> tuple[Plane | None, np.ndarray]:
     """RANSAC (vectorised over hypotheses) + least-squares plane through 3D points.
 
     Parameters
@@ -76,8 +79,8 @@ def fit_ground_plane(points: np.ndarray, iterations: int = 64, tol_m: float = 0.
     if not good.any():
         return None, np.zeros(n_pts, dtype=bool)
     nrm, a = nrm[good], a[good]
-    off = -np.einsum('ij,ij->i', nrm, a)
-    score = (np.abs(np.einsum('nj,hj->nh', sub, nrm) + off) < tol_m).sum(axis=0)
+    off = -np.einsum("ij,ij->i", nrm, a)
+    score = (np.abs(np.einsum("nj,hj->nh", sub, nrm) + off) < tol_m).sum(axis=0)
     k = int(np.argmax(score))
     normal, c0 = nrm[k], float(off[k])
     # least-squares refinement on the scored subset (twice: the inlier set moves with the
@@ -89,7 +92,7 @@ def fit_ground_plane(points: np.ndarray, iterations: int = 64, tol_m: float = 0.
         q = sub[inl]
         mean = q.mean(axis=0)
         d = q - mean
-        _, vecs = np.linalg.eigh(np.einsum('ni,nj->ij', d, d) / len(d))
+        _, vecs = np.linalg.eigh(np.einsum("ni,nj->ij", d, d) / len(d))
         normal = vecs[:, 0] * (1.0 if vecs[2, 0] >= 0 else -1.0)
         c0 = -float(mean @ normal)
     return Plane(normal, c0), np.abs(_dot3(p, normal) + c0) < tol_m

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from typing import Optional
 
 import cv2
 import numpy as np
@@ -15,8 +14,11 @@ from .rig import StereoRig
 # image helpers
 
 
-def debayer(img: np.ndarray, encoding: str = 'bayer_rggb8', demosaic: str = 'bilinear',
-            ) -> np.ndarray:
+def debayer(
+    img: np.ndarray,
+    encoding: str = "bayer_rggb8",
+    demosaic: str = "bilinear",
+) -> np.ndarray:
     """Raw image -> ``(H, W, 3)`` uint8 RGB.
 
     ``encoding`` is the ROS name: a Bayer pattern (:data:`BAYER_CODES`), ``'rgb8'``,
@@ -26,31 +28,30 @@ def debayer(img: np.ndarray, encoding: str = 'bayer_rggb8', demosaic: str = 'bil
     """
     a = np.asarray(img)
     if a.dtype != np.uint8:
-        raise ValueError(f'image must be uint8, got {a.dtype}')
+        raise ValueError(f"image must be uint8, got {a.dtype}")
     enc = encoding.lower()
     if enc in BAYER_CODES:
         if a.ndim != 2:
-            raise ValueError(f'{encoding} image must be (H, W), got {a.shape}')
+            raise ValueError(f"{encoding} image must be (H, W), got {a.shape}")
         if demosaic not in _DEMOSAIC:
-            raise ValueError(f'demosaic must be one of {tuple(_DEMOSAIC)}, got {demosaic!r}')
-        return cv2.cvtColor(a, getattr(cv2, f'COLOR_BAYER_{_BAYER_CV[enc]}2RGB'
-                                             f'{_DEMOSAIC[demosaic]}'))
-    if enc == 'rgb8' and a.ndim == 3:
+            raise ValueError(f"demosaic must be one of {tuple(_DEMOSAIC)}, got {demosaic!r}")
+        return cv2.cvtColor(a, getattr(cv2, f"COLOR_BAYER_{_BAYER_CV[enc]}2RGB{_DEMOSAIC[demosaic]}"))
+    if enc == "rgb8" and a.ndim == 3:
         return a
-    if enc == 'bgr8' and a.ndim == 3:
+    if enc == "bgr8" and a.ndim == 3:
         return np.ascontiguousarray(a[..., ::-1])
-    if enc in ('mono8', '8uc1') and a.ndim == 2:
+    if enc in ("mono8", "8uc1") and a.ndim == 2:
         return cv2.cvtColor(a, cv2.COLOR_GRAY2RGB)
-    raise ValueError(f'unsupported image encoding {encoding!r} for shape {a.shape}')
+    raise ValueError(f"unsupported image encoding {encoding!r} for shape {a.shape}")
 
 
-def grey(img: np.ndarray, encoding: str = 'bayer_rggb8') -> np.ndarray:
+def grey(img: np.ndarray, encoding: str = "bayer_rggb8") -> np.ndarray:
     """Raw image -> ``(H, W)`` uint8 grey (Bayer images straight from the mosaic)."""
     a = np.asarray(img)
     enc = encoding.lower()
     if enc in BAYER_CODES and a.ndim == 2 and a.dtype == np.uint8:
-        return cv2.cvtColor(a, getattr(cv2, f'COLOR_BAYER_{_BAYER_CV[enc]}2GRAY'))
-    if enc in ('mono8', '8uc1') and a.ndim == 2 and a.dtype == np.uint8:
+        return cv2.cvtColor(a, getattr(cv2, f"COLOR_BAYER_{_BAYER_CV[enc]}2GRAY"))
+    if enc in ("mono8", "8uc1") and a.ndim == 2 and a.dtype == np.uint8:
         return a
     return cv2.cvtColor(debayer(a, encoding), cv2.COLOR_RGB2GRAY)
 
@@ -75,8 +76,7 @@ def _orb_vertical_offset(a: np.ndarray, b: np.ndarray) -> tuple[float, int]:
     return float(np.median(dy[ok])), int(ok.sum())
 
 
-def detect_rectified(left: np.ndarray, right: np.ndarray, rig: StereoRig,
-                     min_matches: int = 30) -> Optional[bool]:
+def detect_rectified(left: np.ndarray, right: np.ndarray, rig: StereoRig, min_matches: int = 30) -> bool | None:
     """Whether a pair (grey or RGB, full size) is rectified already: True / False, None when
     undecided.
 
@@ -86,8 +86,8 @@ def detect_rectified(left: np.ndarray, right: np.ndarray, rig: StereoRig,
     gl = left if left.ndim == 2 else cv2.cvtColor(left, cv2.COLOR_RGB2GRAY)
     gr = right if right.ndim == 2 else cv2.cvtColor(right, cv2.COLOR_RGB2GRAY)
     raw, n_raw = _orb_vertical_offset(gl, gr)
-    rl = cv2.remap(gl, *rig.rectify_maps('left'), cv2.INTER_LINEAR)
-    rr = cv2.remap(gr, *rig.rectify_maps('right'), cv2.INTER_LINEAR)
+    rl = cv2.remap(gl, *rig.rectify_maps("left"), cv2.INTER_LINEAR)
+    rr = cv2.remap(gr, *rig.rectify_maps("right"), cv2.INTER_LINEAR)
     rect, n_rect = _orb_vertical_offset(rl, rr)
     if n_raw < min_matches and n_rect < min_matches:
         return None

@@ -3,8 +3,6 @@ and the images made from it (north-up BGR for a PNG, overlay with the occupancy 
 
 from __future__ import annotations
 
-from typing import Optional
-
 import numpy as np
 
 from .config import TextureConfig
@@ -33,11 +31,15 @@ class TextureMap:
         texture will be rendered in (``/map``'s origin) to avoid resampling shifts.
     """
 
-    def __init__(self, cell_m: float = 0.1, tile_cells: int = 128, max_tiles: int = 1024,
-                 anchor_xy: tuple[float, float] | np.ndarray = (0.0, 0.0)) -> None:
+    def __init__(
+        self,
+        cell_m: float = 0.1,
+        tile_cells: int = 128,
+        max_tiles: int = 1024,
+        anchor_xy: tuple[float, float] | np.ndarray = (0.0, 0.0),
+    ) -> None:
         if not cell_m > 0 or tile_cells < 1 or max_tiles < 1:
-            raise ValueError(f'bad texture map geometry: cell {cell_m}, tile {tile_cells}, '
-                             f'max tiles {max_tiles}')
+            raise ValueError(f"bad texture map geometry: cell {cell_m}, tile {tile_cells}, max tiles {max_tiles}")
         self.cell_m = float(cell_m)
         self.tile_cells = int(tile_cells)
         self.max_tiles = int(max_tiles)
@@ -48,18 +50,20 @@ class TextureMap:
         self.samples_dropped = 0
 
     @classmethod
-    def from_config(cls, cfg: TextureConfig, anchor_xy: tuple[float, float] | np.ndarray = (0.0, 0.0),
-                    ) -> TextureMap:
+    def from_config(
+        cls,
+        cfg: TextureConfig,
+        anchor_xy: tuple[float, float] | np.ndarray = (0.0, 0.0),
+    ) -> TextureMap:
         return cls(cfg.cell_m, cfg.tile_cells, cfg.max_tiles, anchor_xy)
 
     @property
     def memory_bytes(self) -> int:
-        return 16 * self.tile_cells ** 2 * len(self.tiles)
+        return 16 * self.tile_cells**2 * len(self.tiles)
 
     def cells_of(self, xy: np.ndarray) -> np.ndarray:
         """World ``(N, 2)`` (m) -> int64 cell indices ``(N, 2)`` ``[i (x), j (y)]``."""
-        return np.floor((np.asarray(xy, dtype=np.float64) - self.anchor) / self.cell_m
-                        ).astype(np.int64)
+        return np.floor((np.asarray(xy, dtype=np.float64) - self.anchor) / self.cell_m).astype(np.int64)
 
     def add(self, xy: np.ndarray, rgb: np.ndarray) -> int:
         """Add samples: world points ``(N, 2)`` (m) with colours ``(N, 3)`` (0..255).
@@ -71,7 +75,7 @@ class TextureMap:
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         col = np.asarray(rgb, dtype=np.float32).reshape(-1, 3)
         if len(xy) != len(col):
-            raise ValueError(f'{len(xy)} points but {len(col)} colours')
+            raise ValueError(f"{len(xy)} points but {len(col)} colours")
         ok = np.isfinite(xy).all(axis=1)
         if not ok.all():
             xy, col = xy[ok], col[ok]
@@ -84,7 +88,7 @@ class TextureMap:
         ntx, nty = (thi - tlo + 1).tolist()
         if ntx * nty > 64:  # scattered input: one call per group of nearby samples
             key = (tiles[:, 0] - tlo[0]) // 8 * (nty // 8 + 1) + (tiles[:, 1] - tlo[1]) // 8
-            order = np.argsort(key, kind='stable')
+            order = np.argsort(key, kind="stable")
             ks = key[order]
             cuts = np.flatnonzero(ks[1:] != ks[:-1]) + 1
             return sum(self.add(xy[g], col[g]) for g in np.split(order, cuts))
@@ -93,12 +97,13 @@ class TextureMap:
         loc = cells - tlo * t
         flat = loc[:, 1] * gw + loc[:, 0]
         n = np.bincount(flat, minlength=gw * gh).reshape(gh, gw)
-        sums = np.stack([np.bincount(flat, weights=col[:, ch], minlength=gw * gh)
-                         for ch in range(3)], axis=-1).reshape(gh, gw, 3)
+        sums = np.stack([np.bincount(flat, weights=col[:, ch], minlength=gw * gh) for ch in range(3)], axis=-1).reshape(
+            gh, gw, 3
+        )
         added = 0
         for jy in range(nty):
             for ix in range(ntx):
-                nn = n[jy * t:(jy + 1) * t, ix * t:(ix + 1) * t]
+                nn = n[jy * t : (jy + 1) * t, ix * t : (ix + 1) * t]
                 touched = nn > 0
                 if not touched.any():
                     continue
@@ -112,7 +117,7 @@ class TextureMap:
                     tile = (np.zeros((t, t, 3), np.float32), np.zeros((t, t), np.float32))
                     self.tiles[tk] = tile
                 mean, count = tile
-                ss = sums[jy * t:(jy + 1) * t, ix * t:(ix + 1) * t][touched]
+                ss = sums[jy * t : (jy + 1) * t, ix * t : (ix + 1) * t][touched]
                 nt = nn[touched].astype(np.float64)
                 c_new = count[touched] + nt
                 m = mean[touched]
@@ -122,7 +127,7 @@ class TextureMap:
         self.samples_added += added
         return added
 
-    def covered_bounds(self) -> Optional[tuple[float, float, float, float]]:
+    def covered_bounds(self) -> tuple[float, float, float, float] | None:
         """World ``(xmin, ymin, xmax, ymax)`` of the allocated tiles (m), or None."""
         if not self.tiles:
             return None
@@ -136,8 +141,9 @@ class TextureMap:
         """Cells with at least one sample."""
         return int(sum(int((c > 0).sum()) for _, c in self.tiles.values()))
 
-    def render(self, origin_xy: tuple[float, float] | np.ndarray, resolution: float,
-               width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    def render(
+        self, origin_xy: tuple[float, float] | np.ndarray, resolution: float, width: int, height: int
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The texture in a map geometry (``OccupancyGrid`` layout, row 0 = lowest y).
 
         An output cell coarser than 1.5 texture cells is the sample-weighted mean of the
@@ -153,7 +159,7 @@ class TextureMap:
         """
         w, h = int(width), int(height)
         if w <= 0 or h <= 0 or not resolution > 0:
-            raise ValueError(f'bad render geometry {w} x {h} at {resolution!r} m')
+            raise ValueError(f"bad render geometry {w} x {h} at {resolution!r} m")
         o = np.asarray(origin_xy, dtype=np.float64).reshape(-1)[:2]
         res = float(resolution)
         t, cm = self.tile_cells, self.cell_m
@@ -228,7 +234,7 @@ class TextureMap:
             covered[r0:r1, c0:c1] = cov_b
         return rgb, covered
 
-    def render_native(self) -> Optional[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    def render_native(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """``(rgb, covered, origin_xy)`` over the allocated tiles at ``cell_m``, or None."""
         b = self.covered_bounds()
         if b is None:
@@ -247,8 +253,9 @@ def north_up_bgr(rgb: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(rgb)[::-1, :, ::-1])
 
 
-def overlay_occupancy(rgb: np.ndarray, covered: np.ndarray, occupancy: np.ndarray,
-                      occupied_threshold: int = 65, free_threshold: int = 25) -> np.ndarray:
+def overlay_occupancy(
+    rgb: np.ndarray, covered: np.ndarray, occupancy: np.ndarray, occupied_threshold: int = 65, free_threshold: int = 25
+) -> np.ndarray:
     """Texture + occupancy in one RGB image (same geometry, ``OccupancyGrid`` layout).
 
     Occupied cells (``>= occupied_threshold``) are drawn red (255, 0, 0) over everything;
@@ -257,7 +264,7 @@ def overlay_occupancy(rgb: np.ndarray, covered: np.ndarray, occupancy: np.ndarra
     """
     occ = np.asarray(occupancy)
     if occ.shape != rgb.shape[:2]:
-        raise ValueError(f'occupancy {occ.shape} and texture {rgb.shape[:2]} differ')
+        raise ValueError(f"occupancy {occ.shape} and texture {rgb.shape[:2]} differ")
     out = np.full(rgb.shape, 90, dtype=np.uint8)
     out[(occ >= 0) & (occ <= free_threshold)] = 200
     out[covered] = rgb[covered]

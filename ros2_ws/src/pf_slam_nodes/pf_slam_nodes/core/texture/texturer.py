@@ -6,13 +6,12 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from typing import Optional
 
 import cv2
 import numpy as np
 
 from .config import _SGBM_MODES, TextureConfig
-from .ground import Plane, fit_ground_plane, _dot3
+from .ground import Plane, _dot3, fit_ground_plane
 from .images import debayer, detect_rectified, grey
 from .map import TextureMap
 from .rig import StereoRig
@@ -37,10 +36,10 @@ def interpolate_poses(stamps: np.ndarray, poses: np.ndarray, query: np.ndarray) 
     ok = (q >= st[0]) & (q <= st[-1])
     if not ok.any():
         return out
-    i = np.clip(np.searchsorted(st, q[ok], side='right') - 1, 0, max(len(st) - 2, 0))
+    i = np.clip(np.searchsorted(st, q[ok], side="right") - 1, 0, max(len(st) - 2, 0))
     j = np.minimum(i + 1, len(st) - 1)
     span = (st[j] - st[i]).astype(np.float64)
-    with np.errstate(invalid='ignore', divide='ignore'):
+    with np.errstate(invalid="ignore", divide="ignore"):
         w = np.where(span > 0, (q[ok] - st[i]).astype(np.float64) / span, 0.0)
     th = np.unwrap(ps[:, 2])
     out[ok, 0] = ps[i, 0] + w * (ps[j, 0] - ps[i, 0])
@@ -112,27 +111,34 @@ class StereoTexturer:
     cfg : TextureConfig
     """
 
-    def __init__(self, rig: StereoRig, cfg: Optional[TextureConfig] = None) -> None:
+    def __init__(self, rig: StereoRig, cfg: TextureConfig | None = None) -> None:
         self.rig = rig
         self.cfg = cfg or TextureConfig()
         self.rng = np.random.default_rng(self.cfg.seed)
-        self._rectify: Optional[bool] = {'yes': True, 'no': False}.get(self.cfg.rectify)
+        self._rectify: bool | None = {"yes": True, "no": False}.get(self.cfg.rectify)
         k = self.cfg.downscale
         nd = self.cfg.num_disparities // k
         bs = self.cfg.block_size
         self._pad = nd
         self._sgbm = cv2.StereoSGBM_create(
-            minDisparity=0, numDisparities=nd, blockSize=bs,
-            P1=int(round(self.cfg.p1 * bs * bs)), P2=int(round(self.cfg.p2 * bs * bs)),
-            disp12MaxDiff=self.cfg.disp12_max_diff, uniquenessRatio=self.cfg.uniqueness_ratio,
-            speckleWindowSize=self.cfg.speckle_window, speckleRange=self.cfg.speckle_range,
-            preFilterCap=self.cfg.pre_filter_cap, mode=_SGBM_MODES[self.cfg.sgbm_mode])
+            minDisparity=0,
+            numDisparities=nd,
+            blockSize=bs,
+            P1=int(round(self.cfg.p1 * bs * bs)),
+            P2=int(round(self.cfg.p2 * bs * bs)),
+            disp12MaxDiff=self.cfg.disp12_max_diff,
+            uniquenessRatio=self.cfg.uniqueness_ratio,
+            speckleWindowSize=self.cfg.speckle_window,
+            speckleRange=self.cfg.speckle_range,
+            preFilterCap=self.cfg.pre_filter_cap,
+            mode=_SGBM_MODES[self.cfg.sgbm_mode],
+        )
         self._clahe = cv2.createCLAHE(clipLimit=2.0, tileGridSize=(8, 8))
         self.first_row = self._first_row()
         self._stride_cache: dict[tuple[int, int], np.ndarray] = {}
 
     @property
-    def rectify(self) -> Optional[bool]:
+    def rectify(self) -> bool | None:
         """Whether pairs are rectified here (None: ``'auto'`` has not decided yet)."""
         return self._rectify
 
@@ -149,8 +155,12 @@ class StereoTexturer:
         return v0 - v0 % cfg.downscale
 
     # ---------------------------------------------------------------- stages
-    def prepare(self, left: np.ndarray, right: np.ndarray, encoding: str = 'bayer_rggb8',
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, Optional[np.ndarray], dict]:
+    def prepare(
+        self,
+        left: np.ndarray,
+        right: np.ndarray,
+        encoding: str = "bayer_rggb8",
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, dict]:
         """Demosaic + rectify the processed rows (``first_row:``).
 
         Returns ``(left_rgb, left_grey, right_grey, valid, timings)``: the left colour image
@@ -161,8 +171,9 @@ class StereoTexturer:
         t0 = time.perf_counter()
         for img in (left, right):
             if img.shape[:2] != (self.rig.height, self.rig.width):
-                raise ValueError(f'image is {img.shape[1]} x {img.shape[0]}, the calibration '
-                                 f'{self.rig.width} x {self.rig.height}')
+                raise ValueError(
+                    f"image is {img.shape[1]} x {img.shape[0]}, the calibration {self.rig.width} x {self.rig.height}"
+                )
         # images that need no rectification: only the processed rows (and a margin for the
         # demosaicing neighbourhood, even to keep the Bayer phase) are demosaiced
         crop = max(self.first_row - _DEMOSAIC_MARGIN, 0) if self._rectify is False else 0
@@ -177,17 +188,15 @@ class StereoTexturer:
         valid = None
         if rect:
             outs = []
-            for side, img in (('left', lrgb), ('left', lg), ('right', rg)):
+            for side, img in (("left", lrgb), ("left", lg), ("right", rg)):
                 mx, my = self.rig.rectify_maps(side)
-                outs.append(cv2.remap(img, mx[v0:], my[v0:], cv2.INTER_LINEAR,
-                                      borderMode=cv2.BORDER_CONSTANT))
+                outs.append(cv2.remap(img, mx[v0:], my[v0:], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT))
             lrgb, lg, rg = outs
-            valid = self.rig.rectified_valid('left')[v0:]
+            valid = self.rig.rectified_valid("left")[v0:]
         else:
-            lrgb, lg, rg = lrgb[v0 - crop:], lg[v0 - crop:], rg[v0 - crop:]
+            lrgb, lg, rg = lrgb[v0 - crop :], lg[v0 - crop :], rg[v0 - crop :]
         t2 = time.perf_counter()
-        return lrgb, lg, rg, valid, {'debayer': 1e3 * (t1 - t0), 'rectify': 1e3 * (t2 - t1),
-                                     'rectified_here': rect}
+        return lrgb, lg, rg, valid, {"debayer": 1e3 * (t1 - t0), "rectify": 1e3 * (t2 - t1), "rectified_here": rect}
 
     def disparity(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
         """SGBM disparity of (cropped) rectified grey (or RGB) images.
@@ -198,9 +207,9 @@ class StereoTexturer:
         k = self.cfg.downscale
         gl = left if left.ndim == 2 else cv2.cvtColor(left, cv2.COLOR_RGB2GRAY)
         gr = right if right.ndim == 2 else cv2.cvtColor(right, cv2.COLOR_RGB2GRAY)
-        if self.cfg.prefilter == 'clahe':
+        if self.cfg.prefilter == "clahe":
             gl, gr = self._clahe.apply(gl), self._clahe.apply(gr)
-        elif self.cfg.prefilter == 'equalize':
+        elif self.cfg.prefilter == "equalize":
             gl, gr = cv2.equalizeHist(gl), cv2.equalizeHist(gr)
         h, w = gl.shape
         h, w = h - h % k, w - w % k
@@ -232,12 +241,10 @@ class StereoTexturer:
         """
         k = self.cfg.downscale
         h, w = disp.shape
-        ry, rx = self._grid_rays(self.first_row + k * np.arange(h) + 0.5 * (k - 1),
-                                 k * np.arange(w) + 0.5 * (k - 1))
+        ry, rx = self._grid_rays(self.first_row + k * np.arange(h) + 0.5 * (k - 1), k * np.arange(w) + 0.5 * (k - 1))
         d = disp - np.float32(self.rig.cx_offset)
-        with np.errstate(divide='ignore', invalid='ignore'):
-            z = np.where(d > 0, np.float32(self.rig.f * self.rig.baseline_m) / d, np.nan
-                         ).astype(np.float32)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.where(d > 0, np.float32(self.rig.f * self.rig.baseline_m) / d, np.nan).astype(np.float32)
         r_vc, t = self.rig.rect_to_vehicle(rectified_here)
         r = r_vc.astype(np.float32)
         out = np.empty((h, w, 3), np.float32)
@@ -245,8 +252,7 @@ class StereoTexturer:
             out[..., i] = (r[i, 0] * rx + r[i, 1] * ry + r[i, 2]) * z + np.float32(t[i])
         return out
 
-    def points(self, disp: np.ndarray, rectified_here: bool
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def points(self, disp: np.ndarray, rectified_here: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Vehicle-frame points of the valid disparities: ``(p (N, 3) float64, rows (N,),
         cols (N,))``, rows / columns indexing ``disp``."""
         g = self.point_grid(disp, rectified_here)
@@ -261,9 +267,12 @@ class StereoTexturer:
         """Bool: vehicle-frame ``x``, ``y`` (m, any shape) inside the range box."""
         t = self.rig.t_vehicle_cam
         ahead = x - np.float32(t[0])
-        with np.errstate(invalid='ignore'):
-            return ((ahead >= self.cfg.min_range_m) & (ahead <= self.cfg.max_range_m)
-                    & (np.abs(y - np.float32(t[1])) <= self.cfg.max_lateral_m))
+        with np.errstate(invalid="ignore"):
+            return (
+                (ahead >= self.cfg.min_range_m)
+                & (ahead <= self.cfg.max_range_m)
+                & (np.abs(y - np.float32(t[1])) <= self.cfg.max_lateral_m)
+            )
 
     def ground_plane(self, p: np.ndarray) -> tuple[Plane, bool]:
         """Road plane of one pair's vehicle-frame points (nominal plane on failure)."""
@@ -272,10 +281,10 @@ class StereoTexturer:
         if not cfg.plane_fit:
             return nominal, False
         near = self._in_box(p) & (np.abs(p[:, 2]) < cfg.plane_max_offset_m + cfg.ransac_tol_m)
-        plane, _ = fit_ground_plane(p[near], cfg.ransac_iterations, cfg.ransac_tol_m,
-                                    cfg.ransac_max_points, cfg.plane_max_tilt_deg, self.rng)
-        if plane is None or plane.tilt_deg > cfg.plane_max_tilt_deg \
-                or abs(plane.c) > cfg.plane_max_offset_m:
+        plane, _ = fit_ground_plane(
+            p[near], cfg.ransac_iterations, cfg.ransac_tol_m, cfg.ransac_max_points, cfg.plane_max_tilt_deg, self.rng
+        )
+        if plane is None or plane.tilt_deg > cfg.plane_max_tilt_deg or abs(plane.c) > cfg.plane_max_offset_m:
             return nominal, False
         return plane, True
 
@@ -298,11 +307,11 @@ class StereoTexturer:
             n = float(cfg.cell_samples)
 
             def stride_of(fp: np.ndarray) -> np.ndarray:
-                with np.errstate(divide='ignore', invalid='ignore'):
+                with np.errstate(divide="ignore", invalid="ignore"):
                     st = np.where(np.isfinite(fp), np.floor(cfg.cell_m / (n * fp)), 1.0)
                 return np.clip(np.nan_to_num(st, nan=1.0), 1, cfg.pixel_stride_max).astype(np.int64)
 
-            with np.errstate(divide='ignore', invalid='ignore'):
+            with np.errstate(divide="ignore", invalid="ignore"):
                 z = np.where(v > rig.cy + 1.0, rig.fy * cam_h / (v - rig.cy), np.inf)
             s_row, s_col = stride_of(z * z / (rig.fy * cam_h)), stride_of(z / rig.f)
             rows = (np.arange(h) % s_row) == 0
@@ -311,9 +320,14 @@ class StereoTexturer:
             self._stride_cache[key] = m
         return m
 
-    def process(self, left: np.ndarray, right: np.ndarray,
-                pose: Optional[np.ndarray] = None, encoding: str = 'bayer_rggb8',
-                cells: Optional[tuple[np.ndarray, float]] = None) -> FrameResult:
+    def process(
+        self,
+        left: np.ndarray,
+        right: np.ndarray,
+        pose: np.ndarray | None = None,
+        encoding: str = "bayer_rggb8",
+        cells: tuple[np.ndarray, float] | None = None,
+    ) -> FrameResult:
         """One stereo pair -> coloured ground samples.
 
         Parameters
@@ -330,12 +344,12 @@ class StereoTexturer:
         cfg, rig = self.cfg, self.rig
         t0 = time.perf_counter()
         lrgb, lg, rg, valid, tm = self.prepare(left, right, encoding)
-        rect = bool(tm.pop('rectified_here'))
+        rect = bool(tm.pop("rectified_here"))
         t1 = time.perf_counter()
         disp = self.disparity(lg, rg)
         k = cfg.downscale
         if valid is not None:  # no disparity where the rectified left image has no data
-            vk = valid[: disp.shape[0] * k: k, : disp.shape[1] * k: k]
+            vk = valid[: disp.shape[0] * k : k, : disp.shape[1] * k : k]
             disp[~vk[: disp.shape[0], : disp.shape[1]]] = np.nan
         t2 = time.perf_counter()
         grid = self.point_grid(disp, rect)
@@ -344,13 +358,12 @@ class StereoTexturer:
         plane, fitted = self.ground_plane(p)
         n32 = plane.normal.astype(np.float32)
         t = rig.t_vehicle_cam.astype(np.float32)
-        with np.errstate(invalid='ignore'):
+        with np.errstate(invalid="ignore"):
             hgt = _dot3(grid, n32) + np.float32(plane.c)
             ground_ds = (np.abs(hgt) < cfg.height_tol_m) & self._in_box(grid)
             if cfg.obstacle_margin_px > 0:  # block matching fattens objects over the ground
                 m = 2 * cfg.obstacle_margin_px + 1
-                above = cv2.dilate((hgt > cfg.height_tol_m).astype(np.uint8),
-                                   np.ones((m, m), np.uint8))
+                above = cv2.dilate((hgt > cfg.height_tol_m).astype(np.uint8), np.ones((m, m), np.uint8))
                 ground_ds &= above == 0
         # full-resolution ground pixels
         hf, wf = lrgb.shape[:2]
@@ -369,7 +382,7 @@ class StereoTexturer:
             ry, rx = ry[:, 0], rx[0]
             q = [r[i, 0] * rx + r[i, 1] * ry + r[i, 2] for i in range(3)]  # vehicle rays
             nq = n32[0] * q[0] + n32[1] * q[1] + n32[2] * q[2]
-            with np.errstate(divide='ignore', invalid='ignore'):
+            with np.errstate(divide="ignore", invalid="ignore"):
                 sc = -np.float32(float(plane.normal @ rig.t_vehicle_cam) + plane.c) / nq
                 px = t[0] + sc * q[0]
                 py = t[1] + sc * q[1]
@@ -386,11 +399,9 @@ class StereoTexturer:
         if pose is not None:
             x, y, th = (float(a) for a in np.asarray(pose, dtype=np.float64).reshape(3))
             c, s_ = math.cos(th), math.sin(th)
-            xy_w = np.column_stack([x + c * xy_v[:, 0] - s_ * xy_v[:, 1],
-                                    y + s_ * xy_v[:, 0] + c * xy_v[:, 1]])
+            xy_w = np.column_stack([x + c * xy_v[:, 0] - s_ * xy_v[:, 1], y + s_ * xy_v[:, 0] + c * xy_v[:, 1]])
             if cells is not None and cfg.fill_gaps:
-                fxy, frgb = self._fill(np.array([x, y, th]), cells, xy_w, ground_full, lrgb,
-                                        plane, rect)
+                fxy, frgb = self._fill(np.array([x, y, th]), cells, xy_w, ground_full, lrgb, plane, rect)
                 n_fill = len(fxy)
                 if n_fill:
                     xy_w = np.concatenate([xy_w, fxy])
@@ -400,12 +411,30 @@ class StereoTexturer:
         t3 = time.perf_counter()
         tm.update(disparity=1e3 * (t2 - t1), ground=1e3 * (t3 - t2), total=1e3 * (t3 - t0))
         n_proc = disp.size if valid is None else max(int(valid[::k, ::k].sum()), 1)
-        return FrameResult(xy_w, xy_v, rgb, plane, fitted, rect, disp, self.first_row,
-                           float(np.isfinite(disp).sum() / max(n_proc, 1)), tm, n_fill)
+        return FrameResult(
+            xy_w,
+            xy_v,
+            rgb,
+            plane,
+            fitted,
+            rect,
+            disp,
+            self.first_row,
+            float(np.isfinite(disp).sum() / max(n_proc, 1)),
+            tm,
+            n_fill,
+        )
 
-    def _fill(self, pose: np.ndarray, cells: tuple[np.ndarray, float], xy_w: np.ndarray,
-              ground: np.ndarray, lrgb: np.ndarray, plane: Plane, rect: bool,
-              ) -> tuple[np.ndarray, np.ndarray]:
+    def _fill(
+        self,
+        pose: np.ndarray,
+        cells: tuple[np.ndarray, float],
+        xy_w: np.ndarray,
+        ground: np.ndarray,
+        lrgb: np.ndarray,
+        plane: Plane,
+        rect: bool,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Gap filling: the cells of the frame's range box that no ground pixel fell in, whose
         centre projects onto a ground pixel, get the bilinear colour at that projection.
 
@@ -446,7 +475,7 @@ class StereoTexturer:
         qx = r[0, 0] * px + r[1, 0] * py + r[2, 0] * pz  # camera frame: r^T p
         qy = r[0, 1] * px + r[1, 1] * py + r[2, 1] * pz
         qz = r[0, 2] * px + r[1, 2] * py + r[2, 2] * pz
-        with np.errstate(divide='ignore', invalid='ignore'):
+        with np.errstate(divide="ignore", invalid="ignore"):
             u = rig.cx + rig.f * qx / qz
             v = rig.cy + rig.fy * qy / qz - self.first_row
         h, w = ground.shape
@@ -462,8 +491,9 @@ class StereoTexturer:
         jj, ii = np.divmod(idx, ni)
         return np.column_stack([gx[ii], gy[jj]]), col
 
-    def integrate(self, texmap: TextureMap, left: np.ndarray, right: np.ndarray,
-                  pose: np.ndarray, encoding: str = 'bayer_rggb8') -> FrameResult:
+    def integrate(
+        self, texmap: TextureMap, left: np.ndarray, right: np.ndarray, pose: np.ndarray, encoding: str = "bayer_rggb8"
+    ) -> FrameResult:
         """:meth:`process` one pair at ``pose`` (gap filling on ``texmap``'s cells) and add
         its samples to ``texmap``."""
         res = self.process(left, right, pose, encoding, cells=(texmap.anchor, texmap.cell_m))
