@@ -27,3 +27,10 @@ def test_targets_lines_count_the_runs_that_meet_each_target():
         "wall <= 56 s in 1 of 2",
         "mit-csail: 2 runs, wall 24.0-25.0 s; ATE vs GMapping 0.100-0.120 m, median 0.100 m",
     ]
+
+
+def test_the_benches_parameter_files_exist():
+    """The benches live in pf_slam_tools; the profiles they run stay in the runtime package."""
+    from pf_slam_tools.bench import car
+
+    assert carmen.CARMEN_YAML.is_file() and car.KAIST_YAML.is_file()

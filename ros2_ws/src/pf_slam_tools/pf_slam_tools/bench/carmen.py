@@ -15,10 +15,11 @@ from pathlib import Path
 from pf_slam_nodes.graph import run
 from pf_slam_nodes.io.convert import convert_carmen
 from pf_slam_nodes.io.evaluation import evaluate
+from pf_slam_nodes.profiles import CONFIG_DIR
 
 from . import stage_table
 
-CARMEN_YAML = Path(__file__).resolve().parents[2] / "config" / "carmen_indoor.yaml"
+CARMEN_YAML = CONFIG_DIR / "carmen_indoor.yaml"
 
 #: name -> (log, relations file or None, reference trajectory or None)
 DATASETS = {
