@@ -69,3 +69,20 @@ def spin_until(executor, predicate: Callable[[], bool], timeout_s: float, step_s
             return predicate()
         executor.spin_once(timeout_sec=step_s)
     return True
+
+
+def config_section(cls, params: dict, prefix: str):
+    """The config `cls` from a node's flat parameters (`prefix.field`), as declare_config builds it
+    (for the ROS-free loop next to the graph in the tests)."""
+    import dataclasses
+
+    from pf_slam_nodes.nodes.declared import as_default_type
+
+    defaults = {f.name: f.default for f in dataclasses.fields(cls)}
+    vals = {}
+    for k, v in params.items():
+        if k.startswith(prefix + "."):
+            name = k[len(prefix) + 1 :]
+            d = defaults[name]
+            vals[name] = tuple(float(x) for x in v) if isinstance(d, tuple) else as_default_type(d, v)
+    return cls.from_dict(vals)

@@ -10,7 +10,6 @@ comes back through atan2: the round trip is not exact in the last bits).
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -18,29 +17,18 @@ import pytest
 
 pytest.importorskip("rclpy")
 
+from conftest import config_section  # noqa: E402
+
 from pf_slam_nodes import graph  # noqa: E402
 from pf_slam_nodes.core import config as cfg  # noqa: E402
 from pf_slam_nodes.core.motion import wrap_angle  # noqa: E402
 from pf_slam_nodes.core.slam import ParticleFilterSlam  # noqa: E402
 from pf_slam_nodes.io.bag import bag_info, read_bag  # noqa: E402
 from pf_slam_nodes.io.trajectory import quat_to_yaw  # noqa: E402
-from pf_slam_nodes.nodes.declared import as_default_type  # noqa: E402
 from pf_slam_nodes.ros import cdr  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "ros2_ws/src/pf_slam_nodes/config"
-
-
-def _section(cls, params: dict, prefix: str):
-    """The config `cls` from a node's flat parameters (`prefix.field`), as declare_config builds it."""
-    defaults = {f.name: f.default for f in dataclasses.fields(cls)}
-    vals = {}
-    for k, v in params.items():
-        if k.startswith(prefix + "."):
-            name = k[len(prefix) + 1 :]
-            d = defaults[name]
-            vals[name] = tuple(float(x) for x in v) if isinstance(d, tuple) else as_default_type(d, v)
-    return cls.from_dict(vals)
 
 
 def _graph_parameters(bag: Path, params_file: Path) -> tuple[dict, dict, dict]:
@@ -60,20 +48,20 @@ def _stream_loop(bag: Path, params_file: Path) -> tuple[ParticleFilterSlam, list
     """The bag through the ROS-free loop, message by message in record order."""
     pred, corr, inputs = _graph_parameters(bag, params_file)
     slam = ParticleFilterSlam(
-        _section(cfg.FilterConfig, corr, "filter"),
-        _section(cfg.OdometryMotionConfig, pred, "motion"),
-        _section(cfg.GridConfig, corr, "grid"),
-        _section(cfg.CorrelationConfig, corr, "correlation"),
-        _section(cfg.ResampleConfig, corr, "resample"),
-        _section(cfg.LaserConfig, corr, "laser"),
+        config_section(cfg.FilterConfig, corr, "filter"),
+        config_section(cfg.OdometryMotionConfig, pred, "motion"),
+        config_section(cfg.GridConfig, corr, "grid"),
+        config_section(cfg.CorrelationConfig, corr, "correlation"),
+        config_section(cfg.ResampleConfig, corr, "resample"),
+        config_section(cfg.LaserConfig, corr, "laser"),
     )
-    assert _section(cfg.FilterConfig, pred, "filter") == slam.predictor.filter_cfg
+    assert config_section(cfg.FilterConfig, pred, "filter") == slam.predictor.filter_cfg
     source = pred.get("odometry_source", "odom")
     fog = pred.get("fog_format", "none")
     slam.open_stream(
         source,
         pred.get("odom_sync", "interpolate"),
-        _section(cfg.WheelsConfig, pred, "wheels") if source == "encoders" else None,
+        config_section(cfg.WheelsConfig, pred, "wheels") if source == "encoders" else None,
         gyro=fog != "none",
         time_gap_s=float(pred.get("time_gap_s", 60.0)),
     )

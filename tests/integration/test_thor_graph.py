@@ -8,13 +8,12 @@ Measured (seed 0, 30 s, 600 scans): ATE 0.051 m, map F1 0.988 with 2 occupied ce
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
 pytest.importorskip("rclpy")
 
+from conftest import config_section  # noqa: E402
 from thor_synth import evaluate_run, write_thor_bag  # noqa: E402
 
 from pf_slam_nodes import graph  # noqa: E402
@@ -22,7 +21,6 @@ from pf_slam_nodes.core import config as cfg  # noqa: E402
 from pf_slam_nodes.core.geometry import quat_to_yaw, wrap_angle  # noqa: E402
 from pf_slam_nodes.core.slam import ParticleFilterSlam  # noqa: E402
 from pf_slam_nodes.io.bag import bag_info, deserialize, read_bag, stamp_ns_of  # noqa: E402
-from pf_slam_nodes.nodes.declared import as_default_type  # noqa: E402
 from pf_slam_nodes.profiles import profile_file  # noqa: E402
 from pf_slam_nodes.ros import cdr  # noqa: E402
 
@@ -68,17 +66,6 @@ def test_depth_texture_in_the_graph(thor):
     assert ev["texture_cells"] > 5000 and ev["texture_error"] < 8.0, ev
 
 
-def _section(cls, params: dict, prefix: str):
-    defaults = {f.name: f.default for f in dataclasses.fields(cls)}
-    vals = {}
-    for k, v in params.items():
-        if k.startswith(prefix + "."):
-            name = k[len(prefix) + 1 :]
-            d = defaults[name]
-            vals[name] = tuple(float(x) for x in v) if isinstance(d, tuple) else as_default_type(d, v)
-    return cls.from_dict(vals)
-
-
 def test_stream_loop_equals_graph(thor):
     """The ROS-free loop fed /scan, /odom and /tf in record order gives the graph's trajectory."""
     synth, out, res, _ = thor
@@ -90,14 +77,14 @@ def test_stream_loop_equals_graph(thor):
     mount = graph.lidar_mount(str(bag), info, inputs)
     layers.insert(0, graph.detect_inputs(str(bag), info, inputs, mount=mount, stamps=stamps))
     pred, corr = graph.node_params(layers, "predictor"), graph.node_params(layers, "correlator")
-    laser = _section(cfg.LaserConfig, corr, "laser")
+    laser = config_section(cfg.LaserConfig, corr, "laser")
     assert laser.dynamic_frame == "head" and laser.min_kept_fraction > 0
     slam = ParticleFilterSlam(
-        _section(cfg.FilterConfig, corr, "filter"),
-        _section(cfg.OdometryMotionConfig, pred, "motion"),
-        _section(cfg.GridConfig, corr, "grid"),
-        _section(cfg.CorrelationConfig, corr, "correlation"),
-        _section(cfg.ResampleConfig, corr, "resample"),
+        config_section(cfg.FilterConfig, corr, "filter"),
+        config_section(cfg.OdometryMotionConfig, pred, "motion"),
+        config_section(cfg.GridConfig, corr, "grid"),
+        config_section(cfg.CorrelationConfig, corr, "correlation"),
+        config_section(cfg.ResampleConfig, corr, "resample"),
         laser,
     )
     slam.open_stream("odom", pred.get("odom_sync", "interpolate"))
