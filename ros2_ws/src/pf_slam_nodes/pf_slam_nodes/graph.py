@@ -59,6 +59,7 @@ from .runner.params import (  # noqa: F401
     _default_particles,
     check_names,
     check_node_values,
+    filter_overrides,
     flatten,
     load_params,
     node_params,
@@ -388,12 +389,7 @@ def run_cli(args: Any, log: Callable[[str], None] = print) -> int:
 
 
 def _cli_overrides(args: Any) -> dict[str, dict[str, Any]]:
-    o: dict[str, Any] = {}
-    if getattr(args, "particles", None) is not None:
-        o["filter.num_particles"] = args.particles
-    if getattr(args, "seed", None) is not None:
-        o["filter.seed"] = args.seed
-    out: dict[str, dict[str, Any]] = {"/**": o} if o else {}
+    out = filter_overrides(args)
     if getattr(args, "delay", None):
         if not args.delay >= 0:
             raise RunError(f"--delay must be a number of seconds >= 0, got {args.delay}")

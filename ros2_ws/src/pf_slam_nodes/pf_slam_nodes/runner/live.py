@@ -28,7 +28,7 @@ from ..ros.domain import RosDomain
 from .common import DEFAULT_INPUTS, RunError
 from .inputs import topic_remaps
 from .mount import MOUNT_PARAMS
-from .params import check_node_values, load_params, node_params, params_topics
+from .params import check_node_values, filter_overrides, load_params, node_params, params_topics
 
 LIVE_NODES = ("predictor", "correlator", "mapper")
 ODOMETRY_CHOICES = ("odom", "encoders", "tf")
@@ -264,12 +264,7 @@ def save_map_via_service(ctx, executor, out: str, log: Callable[[str], None], ti
 
 
 def live_cli(args) -> int:
-    o: dict[str, Any] = {}
-    if getattr(args, "particles", None) is not None:
-        o["filter.num_particles"] = args.particles
-    if getattr(args, "seed", None) is not None:
-        o["filter.seed"] = args.seed
-    overrides: dict[str, dict[str, Any]] = {"/**": o} if o else {}
+    overrides = filter_overrides(args)
     if getattr(args, "sensor_qos", None):
         overrides["predictor"] = {"sensor_qos": args.sensor_qos}
     return live(

@@ -106,6 +106,16 @@ def check_names(path: Path, section: str, key: str, flat: dict[str, Any]) -> Non
 CLI_FLAGS = {"filter.num_particles": "--particles", "filter.seed": "--seed", "rate": "--rate"}
 
 
+def filter_overrides(args: Any) -> dict[str, dict[str, Any]]:
+    """--particles N / --seed S (pf-slam run and live) -> {"/**": {filter.num_particles, filter.seed}}."""
+    o: dict[str, Any] = {}
+    if getattr(args, "particles", None) is not None:
+        o["filter.num_particles"] = args.particles
+    if getattr(args, "seed", None) is not None:
+        o["filter.seed"] = args.seed
+    return {"/**": o} if o else {}
+
+
 def check_node_values(per_node: dict[str, dict[str, Any]], labelled: list[tuple[Callable[[str], str], dict]]) -> None:
     """RunError (one line) for the first value a node would refuse at start-up (bad type, a
     config out of range: what the nodes check when built), naming where it was set, before
