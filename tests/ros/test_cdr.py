@@ -175,3 +175,27 @@ def test_parse_restamp():
     assert parse_restamp("/scan=record,/odom=-3000000000") == {"/scan": "record", "/odom": -3_000_000_000}
     with pytest.raises(ValueError, match="restamp"):
         parse_restamp("/odom=3s")
+
+
+@pytest.mark.parametrize("child", ["", "b", "base_link", "base_footprint"])
+def test_odometry_xy_yaw_equals_the_message_fields(child):
+    """The predictor reads /odom from the bytes: the same x, y and yaw (bit for bit) as from
+    rclpy's message, for child frame names of every alignment; a cut message is a clear error."""
+    from nav_msgs.msg import Odometry
+
+    from pf_slam_nodes.core.geometry import quat_to_yaw
+
+    m = Odometry()
+    m.header.stamp.sec, m.header.stamp.nanosec = 1_700_000_000, 987_654_321
+    m.header.frame_id, m.child_frame_id = "odom", child
+    m.pose.pose.position.x, m.pose.pose.position.y, m.pose.pose.position.z = 1.25, -3.5, 0.7
+    q = m.pose.pose.orientation
+    q.x, q.y, q.z, q.w = 0.01, -0.02, 0.6, 0.8
+    m.pose.covariance[0] = 9.0
+    m.twist.twist.linear.x = 4.0
+    raw = serialize_message(m)
+    stamp, pose = cdr.odometry_xy_yaw(raw)
+    assert stamp == 1_700_000_000_987_654_321
+    assert pose.tolist() == [1.25, -3.5, float(quat_to_yaw(q.x, q.y, q.z, q.w))]
+    with pytest.raises(ValueError, match="Odometry: truncated"):
+        cdr.odometry_xy_yaw(raw[:40])

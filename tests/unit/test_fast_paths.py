@@ -118,3 +118,40 @@ def test_odometry_peek_consumes_nothing():
             got = b.lookup(t, final=True)
             np.testing.assert_array_equal(want, again)
             np.testing.assert_array_equal(want, got)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_points_in_table_in_place_equals_the_plain_formula(dtype):
+    """The window search's point transform works in place (fewer large temporaries): the same
+    arithmetic, so the same bits as the plain expression, in both precisions."""
+    from pf_slam_nodes.core.config import CorrelationConfig
+    from pf_slam_nodes.core.correlation import GridLikelihoodField, _points_in_table
+
+    rng = np.random.default_rng(3)
+    field = GridLikelihoodField(200, 300, 0.05, (-7.3, -4.1), CorrelationConfig())
+    poses = np.column_stack([rng.uniform(-3, 3, 500), rng.uniform(-2, 2, 500), rng.uniform(-4, 4, 500)])
+    pts = rng.uniform(-20, 20, (540, 2))[::2]  # a strided view, as the beam stride gives
+    u, v, rx, ry = _points_in_table(poses, pts, field, dtype)
+    c = np.cos(poses[:, 2:3]).astype(dtype)
+    s = np.sin(poses[:, 2:3]).astype(dtype)
+    px, py = pts[:, 0].astype(dtype), pts[:, 1].astype(dtype)
+    ex, ey = c * px - s * py, s * px + c * py
+    off = field.pad - 0.5
+    eu = ex * dtype(1 / 0.05) + ((poses[:, 0:1] - field.origin[0]) / 0.05 + off).astype(dtype)
+    ev = ey * dtype(1 / 0.05) + ((poses[:, 1:2] - field.origin[1]) / 0.05 + off).astype(dtype)
+    for got, want in ((u, eu), (v, ev), (rx, ex), (ry, ey)):
+        assert got.dtype == dtype and np.array_equal(got, want)
+
+
+def test_keep_freed_memory_is_accepted_by_glibc():
+    """pf-slam run raises glibc's malloc thresholds (runner/memory.py); on Linux/glibc both
+    settings are accepted, and numpy's large temporaries still work."""
+    import platform
+
+    from pf_slam_nodes.runner.memory import keep_freed_memory
+
+    ok = keep_freed_memory()
+    if platform.system() == "Linux" and platform.libc_ver()[0] == "glibc":
+        assert ok
+    a = np.ones((900, 300))
+    assert float((a * 2.0 - a).sum()) == 900 * 300

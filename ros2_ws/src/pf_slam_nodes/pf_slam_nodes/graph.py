@@ -43,6 +43,7 @@ from .runner.inputs import (  # noqa: F401
     tf_inputs,
     topic_remaps,
 )
+from .runner.memory import keep_freed_memory
 from .runner.mount import (  # noqa: F401
     MOUNT_PARAMS,
     LidarMount,
@@ -121,6 +122,7 @@ def run(
     params_file < overrides."""
     if processes not in ("single", "multi"):
         raise RunError(f"--processes must be 'single' or 'multi', got {processes!r}")
+    keep_freed_memory()  # the graph's nodes run in this process (single) or each in its own (run_node)
     plan = _plan(
         bag,
         params_file,

@@ -455,13 +455,14 @@ def _points_in_table(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField,
     c = np.cos(poses[:, 2:3]).astype(dtype, copy=False)
     s = np.sin(poses[:, 2:3]).astype(dtype, copy=False)
     px, py = pts[:, 0].astype(dtype, copy=False), pts[:, 1].astype(dtype, copy=False)
-    rx = c * px - s * py
-    ry = s * px + c * py
-    res = field.resolution
-    inv = dtype(1.0 / res)
-    off = field.pad - 0.5
-    u = rx * inv + ((poses[:, 0:1] - field.origin[0]) / res + off).astype(dtype, copy=False)
-    v = ry * inv + ((poses[:, 1:2] - field.origin[1]) / res + off).astype(dtype, copy=False)
+    # rx = c px - s py, ry = s px + c py, u = rx inv + (..), v alike, in place (fewer (N, M) temporaries)
+    tmp, rx, ry, res, off = s * py, c * px, s * px, field.resolution, field.pad - 0.5
+    rx -= tmp
+    ry += np.multiply(c, py, out=tmp)
+    u = np.multiply(rx, inv := dtype(1.0 / res), out=tmp)
+    u += ((poses[:, 0:1] - field.origin[0]) / res + off).astype(dtype, copy=False)
+    v = ry * inv
+    v += ((poses[:, 1:2] - field.origin[1]) / res + off).astype(dtype, copy=False)
     return u, v, rx, ry
 
 
@@ -472,15 +473,14 @@ def _window_scores_remap(
     whole-cell shift (dy-major (dy, dx) order), one remap per shift."""
     u, v, _, _ = _points_in_table(cand, pts, field)
     u, v = u.astype(np.float32), v.astype(np.float32)  # remap's maps; its rounding picks the cell
-    out = np.empty((cand.shape[0], sx.size * sy.size))
+    out, k = np.empty((cand.shape[0], sx.size * sy.size)), 0
     table, clamp = field._loglik, float(field.min_log_likelihood)
-    k = 0
+    uu, vv, vals = np.empty_like(u), np.empty_like(v), np.empty(u.shape, table.dtype)  # reused per shift
     for dy in sy:
-        vv = v + np.float32(dy)
+        np.add(v, np.float32(dy), out=vv)
         for dx in sx:
-            vals = cv2.remap(
-                table, u + np.float32(dx), vv, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=clamp
-            )
+            np.add(u, np.float32(dx), out=uu)
+            cv2.remap(table, uu, vv, cv2.INTER_NEAREST, dst=vals, borderMode=cv2.BORDER_CONSTANT, borderValue=clamp)
             out[:, k] = vals.sum(axis=1, dtype=np.float64)
             k += 1
     return out

@@ -19,6 +19,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
 from ..core import config as cfg
+from ..runner.memory import keep_freed_memory
 
 T = TypeVar("T")
 
@@ -378,6 +379,7 @@ def run_node(factory: Callable[..., Node], args: list[str] | None = None, clock_
     """`main()` of a node console script: init, spin until Ctrl-C / SIGTERM / shutdown, clean up.
     `clock_follower`: use_sim_time follows /clock when not set (not for the clock's own source)."""
     die_with_parent()
+    keep_freed_memory()
     rclpy.init(args=args)
     node = None
     try:

@@ -122,7 +122,7 @@ class Predictor(Node):
         self.create_subscription(ReplayStatus, topics.REPLAY_STALL, self._on_stall, qos.pipeline())
         wheels_cfg = None
         if source == "odom":
-            sensor_sub(Odometry, topics.ODOM, self._on_odom, 10000)
+            sensor_sub(Odometry, topics.ODOM, self._on_odom, 10000, raw=True)
         elif source == "tf":
             self.create_subscription(TFMessage, topics.TF, self._on_tf_odometry, qos.pipeline(10000))
         elif source == "encoders":
@@ -261,10 +261,10 @@ class Predictor(Node):
         return self.sched.faults()
 
     # ------------------------------------------------------------------ inputs
-    def _on_odom(self, msg: Odometry) -> None:
-        o = msg.pose.pose.orientation
-        pose = np.array([msg.pose.pose.position.x, msg.pose.pose.position.y, float(quat_to_yaw(o.x, o.y, o.z, o.w))])
-        self.sched.add_odometry(convert.stamp_to_ns(msg.header.stamp), pose)
+    def _on_odom(self, raw: bytes) -> None:
+        stamp, pose = self._parse(cdr.odometry_xy_yaw, raw, "odom")
+        if pose is not None:
+            self.sched.add_odometry(stamp, pose)
 
     def _on_tf_odometry(self, msg: TFMessage) -> None:
         """Odometry from the robot's TF tree: each odom_frame -> base_frame transform."""

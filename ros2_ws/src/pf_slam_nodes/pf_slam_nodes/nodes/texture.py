@@ -83,7 +83,7 @@ from tf2_msgs.msg import TFMessage
 
 from pf_slam_interfaces.msg import ReplayStatus
 
-from ..core.geometry import quat_to_matrix, quat_to_yaw
+from ..core.geometry import quat_to_matrix
 from ..core.mount import MountBuffer
 from ..core.texture import (
     DepthCamera,
@@ -95,7 +95,7 @@ from ..core.texture import (
     interpolate_poses,
 )
 from ..io.calib import read_stereo_rig
-from ..ros import convert, qos, topics
+from ..ros import cdr, convert, qos, topics
 from .common import announce_when_matched, declare_config, param, run_node
 
 TEXTURE = "texture"
@@ -240,14 +240,14 @@ class TextureNode(Node):
             self.create_subscription(Image, depth_topic, lambda m: self._on_rgbd("right", m), img_qos)
             self.create_subscription(CameraInfo, rgb_info, lambda m: self._on_info("left", m), qos.pipeline(10))
             self.create_subscription(CameraInfo, depth_info, lambda m: self._on_info("right", m), qos.pipeline(10))
-            self.create_subscription(TFMessage, topics.TF, self._on_tf, qos.pipeline(10000))
+            self.create_subscription(TFMessage, topics.TF, self._on_tf, qos.pipeline(10000), raw=True)
         else:
             self.create_subscription(Image, left_topic, lambda m: self._on_image("left", m), img_qos)
             self.create_subscription(Image, right_topic, lambda m: self._on_image("right", m), img_qos)
             self.create_subscription(CameraInfo, left_info, lambda m: self._on_info("left", m), qos.pipeline(10))
             self.create_subscription(CameraInfo, right_info, lambda m: self._on_info("right", m), qos.pipeline(10))
         self.create_subscription(TFMessage, topics.TF_STATIC, self._on_tf_static, qos.latched(10))
-        self.create_subscription(PoseStamped, topics.POSE, self._on_pose, qos.pipeline())
+        self.create_subscription(PoseStamped, topics.POSE, self._on_pose, qos.pipeline(), raw=True)
         if param(self, "use_map_metadata", True):  # same geometry, without the cells
             self.create_subscription(MapMetaData, topics.MAP_METADATA, self._on_map_info, qos.latched())
         else:
@@ -286,16 +286,23 @@ class TextureNode(Node):
         self._ensure_rig()
         self._release()
 
-    def _on_tf(self, msg: TFMessage) -> None:
-        """/tf (depth mode): the moving links of the camera's chain (e.g. base_link -> head)."""
+    def _on_tf(self, raw: bytes) -> None:
+        """/tf (depth mode): the moving links of the camera's chain (e.g. base_link -> head); read
+        from the bytes (100 Hz: no message objects)."""
         own = (self.base_frame, "odom")
-        for tr in msg.transforms:
-            child = tr.child_frame_id.lstrip("/")
+        try:
+            transforms = cdr.tf_transforms(raw)
+        except ValueError as exc:
+            self.get_logger().error(f"/tf: message dropped: {exc}", throttle_duration_sec=5.0)
+            return
+        for stamp, parent, child, t, q in transforms:
+            child = child.lstrip("/")
             if child in own:
                 continue
-            t, q = tr.transform.translation, tr.transform.rotation
-            buf = self._dynamic.setdefault(child, (tr.header.frame_id.lstrip("/"), MountBuffer()))[1]
-            buf.add(convert.stamp_to_ns(tr.header.stamp), (q.x, q.y, q.z, q.w), (t.x, t.y, t.z))
+            buf = self._dynamic.get(child)
+            if buf is None:
+                buf = self._dynamic[child] = (parent.lstrip("/"), MountBuffer())
+            buf[1].add(stamp, q, t)
         if self._awaiting:
             self._release()
 
@@ -399,11 +406,11 @@ class TextureNode(Node):
                 self.frames_skipped += 1
         self._release()
 
-    def _on_pose(self, msg: PoseStamped) -> None:
+    def _on_pose(self, raw: bytes) -> None:
         self._last_input = time.monotonic()
-        o = msg.pose.orientation
-        self._pose_t.append(convert.stamp_to_ns(msg.header.stamp))
-        self._pose_v.append((msg.pose.position.x, msg.pose.position.y, float(quat_to_yaw(o.x, o.y, o.z, o.w))))
+        stamp, pose = cdr.pose_stamped_xy_yaw(raw)
+        self._pose_t.append(stamp)
+        self._pose_v.append((float(pose[0]), float(pose[1]), float(pose[2])))
         if self._awaiting:
             self._release()
 
@@ -449,6 +456,8 @@ class TextureNode(Node):
         ready = self._ensure_camera() if self.mode == "depth" else self._ensure_rig()
         if not self._awaiting or not self._pose_t or not ready:
             return
+        if self._awaiting[0].stamp_ns > self._pose_t[-1]:
+            return  # the oldest pair is not posed yet (the loop below would stop there)
         t = np.fromiter(self._pose_t, dtype=np.int64, count=len(self._pose_t))
         with self.lock:
             while self._awaiting:

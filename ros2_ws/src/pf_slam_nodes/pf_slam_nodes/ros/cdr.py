@@ -195,6 +195,19 @@ def pose_stamped_xy_yaw(raw: bytes) -> tuple[int, np.ndarray]:
     return stamp, np.array([x, y, float(quat_to_yaw(qx, qy, qz, qw))])
 
 
+def odometry_xy_yaw(raw: bytes) -> tuple[int, np.ndarray]:
+    """nav_msgs/Odometry bytes -> (header stamp ns, ``[x, y, yaw]`` of ``pose.pose``); the
+    child frame, the covariance and the twist are not read (the odometry arrives with every scan:
+    rclpy would build some twenty message objects per Odometry)."""
+    r = CdrReader(raw, "nav_msgs/Odometry")
+    stamp = r.header()
+    r.skip_string()  # child_frame_id
+    r._align(8)
+    r._need(56)
+    x, y, _z, qx, qy, qz, qw = struct.unpack_from(r.end + "7d", raw, r.pos)
+    return stamp, np.array([x, y, float(quat_to_yaw(qx, qy, qz, qw))])
+
+
 def clock_bytes(stamp_ns: int) -> bytes:
     """rosgraph_msgs/Clock (little-endian CDR) at ``stamp_ns``."""
     return _LITTLE_ENDIAN + _STAMP.pack(stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000)
