@@ -275,15 +275,18 @@ class StereoTexturer:
                 & (np.abs(y - np.float32(t[1])) <= self.cfg.max_lateral_m)
             )
 
-    def ground_plane(self, p: np.ndarray) -> tuple[Plane, bool]:
-        """Road plane of one pair's vehicle-frame points (nominal plane on failure)."""
+    def ground_plane(self, p: np.ndarray, preselected: bool = False) -> tuple[Plane, bool]:
+        """Road plane of one pair's vehicle-frame points (nominal plane on failure);
+        ``preselected``: ``p`` holds only the candidates already (in the range box, near the
+        nominal ground)."""
         cfg = self.cfg
         nominal = Plane.nominal()
         if not cfg.plane_fit:
             return nominal, False
-        near = self._in_box(p) & (np.abs(p[:, 2]) < cfg.plane_max_offset_m + cfg.ransac_tol_m)
+        if not preselected:
+            p = p[self._in_box(p) & (np.abs(p[:, 2]) < cfg.plane_max_offset_m + cfg.ransac_tol_m)]
         plane, _ = fit_ground_plane(
-            p[near], cfg.ransac_iterations, cfg.ransac_tol_m, cfg.ransac_max_points, cfg.plane_max_tilt_deg, self.rng
+            p, cfg.ransac_iterations, cfg.ransac_tol_m, cfg.ransac_max_points, cfg.plane_max_tilt_deg, self.rng
         )
         if plane is None or plane.tilt_deg > cfg.plane_max_tilt_deg or abs(plane.c) > cfg.plane_max_offset_m:
             return nominal, False
@@ -383,9 +386,11 @@ class StereoTexturer:
             disp[~vk[: disp.shape[0], : disp.shape[1]]] = np.nan
         t2 = time.perf_counter()
         grid = self.point_grid(disp, rect)
-        fin = np.isfinite(grid[..., 2])
-        p = grid[fin].astype(np.float64)
-        plane, fitted = self.ground_plane(p)
+        # the plane fit's candidates picked on the float32 grid (same points, same order as
+        # ground_plane's own selection from all finite points)
+        with np.errstate(invalid="ignore"):
+            near = self._in_box(grid) & (np.abs(grid[..., 2]) < np.float32(cfg.plane_max_offset_m + cfg.ransac_tol_m))
+        plane, fitted = self.ground_plane(grid[near].astype(np.float64), preselected=True)
         n32 = plane.normal.astype(np.float32)
         t = rig.t_vehicle_cam.astype(np.float32)
         with np.errstate(invalid="ignore"):
@@ -476,10 +481,11 @@ class StereoTexturer:
         if ni <= 0 or nj <= 0 or ni * nj > 4_000_000:
             return np.zeros((0, 2)), np.zeros((0, 3), np.uint8)
         hit = np.zeros((nj, ni), dtype=bool)
-        if len(xy_w):
-            hc = np.floor((xy_w - anchor) / cm).astype(np.int64) - [i0, j0]
-            ok = (hc[:, 0] >= 0) & (hc[:, 0] < ni) & (hc[:, 1] >= 0) & (hc[:, 1] < nj)
-            hit[hc[ok, 1], hc[ok, 0]] = True
+        if len(xy_w):  # per axis: numpy's (N, 2) broadcasts and column picks are slow
+            hx = np.floor((xy_w[:, 0] - anchor[0]) / cm).astype(np.int64) - i0
+            hy = np.floor((xy_w[:, 1] - anchor[1]) / cm).astype(np.int64) - j0
+            ok = (hx >= 0) & (hx < ni) & (hy >= 0) & (hy < nj)
+            hit.ravel()[hy[ok] * ni + hx[ok]] = True
         gx = anchor[0] + (np.arange(i0, i1) + 0.5) * cm
         gy = anchor[1] + (np.arange(j0, j1) + 0.5) * cm
         dx, dy = gx[None, :] - x, gy[:, None] - y
