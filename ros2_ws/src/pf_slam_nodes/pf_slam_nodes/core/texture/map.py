@@ -102,7 +102,10 @@ class TextureMap:
         n = np.bincount(flat, minlength=gw * gh)
         hit = np.flatnonzero(n)
         nt_all = n[hit]
-        ss_all = np.stack([np.bincount(flat, weights=np.ascontiguousarray(col[:, ch]), minlength=gw * gh)[hit] for ch in range(3)], axis=-1)
+        ss_all = np.stack(
+            [np.bincount(flat, weights=np.ascontiguousarray(col[:, ch]), minlength=gw * gh)[hit] for ch in range(3)],
+            axis=-1,
+        )
         ci = hit % gw + lo[0]  # global cell indices of the touched cells
         cj = hit // gw + lo[1]
         tx, ty = np.floor_divide(ci, t), np.floor_divide(cj, t)
