@@ -184,6 +184,9 @@ def _plan(
         per_node["predictor"].setdefault("stamp_offset_s", 0.0)
         if texture:  # pace the image pairs on the texture node as the scans on the poses: none skipped
             per_node["bag_replay"].setdefault("image_topic", inputs.get("stereo_left") or inputs["rgbd_rgb"])
+            # one pair being textured while the next waits for its pose: the texture worker
+            # overlaps the SLAM chain (two cores) instead of stopping it at every pair
+            per_node["bag_replay"].setdefault("max_pairs_in_flight", 2)
             for key in ("queue_depth", "max_pending_pairs"):  # the replay bounds what is in flight
                 per_node["texture"][key] = max(int(per_node["texture"].get(key, 0)), 1000)
     return RunPlan(

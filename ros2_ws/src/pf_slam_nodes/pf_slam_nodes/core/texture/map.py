@@ -76,54 +76,62 @@ class TextureMap:
         col = np.asarray(rgb, dtype=np.float32).reshape(-1, 3)
         if len(xy) != len(col):
             raise ValueError(f"{len(xy)} points but {len(col)} colours")
-        ok = np.isfinite(xy).all(axis=1)
+        ok = np.isfinite(xy[:, 0]) & np.isfinite(xy[:, 1])
         if not ok.all():
             xy, col = xy[ok], col[ok]
         if not len(xy):
             return 0
         t = self.tile_cells
-        cells = self.cells_of(xy)
-        tiles = np.floor_divide(cells, t)
-        tlo, thi = tiles.min(axis=0), tiles.max(axis=0)
-        ntx, nty = (thi - tlo + 1).tolist()
+        # cell indices per axis (1-D: numpy's reductions over axis 0 of (N, 2) are slow)
+        cx = np.floor((xy[:, 0] - self.anchor[0]) / self.cell_m).astype(np.int64)
+        cy = np.floor((xy[:, 1] - self.anchor[1]) / self.cell_m).astype(np.int64)
+        lo = np.array([cx.min(), cy.min()])
+        hi = np.array([cx.max(), cy.max()])
+        gw, gh = (hi - lo + 1).tolist()
+        ntx, nty = (np.floor_divide(hi, t) - np.floor_divide(lo, t) + 1).tolist()
         if ntx * nty > 64:  # scattered input: one call per group of nearby samples
-            key = (tiles[:, 0] - tlo[0]) // 8 * (nty // 8 + 1) + (tiles[:, 1] - tlo[1]) // 8
+            tx0, ty0 = np.floor_divide(cx, t), np.floor_divide(cy, t)
+            key = (tx0 - tx0.min()) // 8 * (nty // 8 + 1) + (ty0 - ty0.min()) // 8
             order = np.argsort(key, kind="stable")
             ks = key[order]
             cuts = np.flatnonzero(ks[1:] != ks[:-1]) + 1
             return sum(self.add(xy[g], col[g]) for g in np.split(order, cuts))
-        # dense bincount over the tile-aligned bounding box of this batch
-        gw, gh = ntx * t, nty * t
-        loc = cells - tlo * t
-        flat = loc[:, 1] * gw + loc[:, 0]
-        n = np.bincount(flat, minlength=gw * gh).reshape(gh, gw)
-        sums = np.stack([np.bincount(flat, weights=col[:, ch], minlength=gw * gh) for ch in range(3)], axis=-1).reshape(
-            gh, gw, 3
+        # per-cell sample counts and colour sums over the batch's bounding box, then the
+        # touched cells tile by tile
+        flat = (cy - lo[1]) * gw + (cx - lo[0])
+        n = np.bincount(flat, minlength=gw * gh)
+        hit = np.flatnonzero(n)
+        nt_all = n[hit]
+        ss_all = np.stack(
+            [np.bincount(flat, weights=np.ascontiguousarray(col[:, ch]), minlength=gw * gh)[hit] for ch in range(3)],
+            axis=-1,
         )
+        ci = hit % gw + lo[0]  # global cell indices of the touched cells
+        cj = hit // gw + lo[1]
+        tx, ty = np.floor_divide(ci, t), np.floor_divide(cj, t)
+        tkey = (ty - ty.min()) * (int(tx.max() - tx.min()) + 1) + (tx - tx.min())
+        order = np.argsort(tkey, kind="stable")
+        tks = tkey[order]
+        cuts = np.flatnonzero(tks[1:] != tks[:-1]) + 1
         added = 0
-        for jy in range(nty):
-            for ix in range(ntx):
-                nn = n[jy * t : (jy + 1) * t, ix * t : (ix + 1) * t]
-                touched = nn > 0
-                if not touched.any():
+        for g in np.split(order, cuts):
+            tk = (int(tx[g[0]]), int(ty[g[0]]))
+            nt = nt_all[g].astype(np.float64)
+            n_here = int(nt_all[g].sum())
+            tile = self.tiles.get(tk)
+            if tile is None:
+                if len(self.tiles) >= self.max_tiles:
+                    self.samples_dropped += n_here
                     continue
-                n_here = int(nn.sum())
-                tk = (int(tlo[0]) + ix, int(tlo[1]) + jy)
-                tile = self.tiles.get(tk)
-                if tile is None:
-                    if len(self.tiles) >= self.max_tiles:
-                        self.samples_dropped += n_here
-                        continue
-                    tile = (np.zeros((t, t, 3), np.float32), np.zeros((t, t), np.float32))
-                    self.tiles[tk] = tile
-                mean, count = tile
-                ss = sums[jy * t : (jy + 1) * t, ix * t : (ix + 1) * t][touched]
-                nt = nn[touched].astype(np.float64)
-                c_new = count[touched] + nt
-                m = mean[touched]
-                mean[touched] = m + ((ss - nt[:, None] * m) / c_new[:, None]).astype(np.float32)
-                count[touched] = c_new
-                added += n_here
+                tile = (np.zeros((t, t, 3), np.float32), np.zeros((t, t), np.float32))
+                self.tiles[tk] = tile
+            mean, count = tile
+            jj, ii = cj[g] - tk[1] * t, ci[g] - tk[0] * t
+            c_new = count[jj, ii] + nt
+            m = mean[jj, ii]
+            mean[jj, ii] = m + ((ss_all[g] - nt[:, None] * m) / c_new[:, None]).astype(np.float32)
+            count[jj, ii] = c_new
+            added += n_here
         self.samples_added += added
         return added
 

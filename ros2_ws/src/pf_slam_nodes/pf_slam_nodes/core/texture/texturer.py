@@ -136,6 +136,7 @@ class StereoTexturer:
         self._clahe = cv2.createCLAHE(clipLimit=2.0, tileGridSize=(8, 8))
         self.first_row = self._first_row()
         self._stride_cache: dict[tuple[int, int], np.ndarray] = {}
+        self._sample_cache: dict[tuple[int, int, bool], tuple[np.ndarray, ...]] = {}
 
     @property
     def rectify(self) -> bool | None:
@@ -274,15 +275,18 @@ class StereoTexturer:
                 & (np.abs(y - np.float32(t[1])) <= self.cfg.max_lateral_m)
             )
 
-    def ground_plane(self, p: np.ndarray) -> tuple[Plane, bool]:
-        """Road plane of one pair's vehicle-frame points (nominal plane on failure)."""
+    def ground_plane(self, p: np.ndarray, preselected: bool = False) -> tuple[Plane, bool]:
+        """Road plane of one pair's vehicle-frame points (nominal plane on failure);
+        ``preselected``: ``p`` holds only the candidates already (in the range box, near the
+        nominal ground)."""
         cfg = self.cfg
         nominal = Plane.nominal()
         if not cfg.plane_fit:
             return nominal, False
-        near = self._in_box(p) & (np.abs(p[:, 2]) < cfg.plane_max_offset_m + cfg.ransac_tol_m)
+        if not preselected:
+            p = p[self._in_box(p) & (np.abs(p[:, 2]) < cfg.plane_max_offset_m + cfg.ransac_tol_m)]
         plane, _ = fit_ground_plane(
-            p[near], cfg.ransac_iterations, cfg.ransac_tol_m, cfg.ransac_max_points, cfg.plane_max_tilt_deg, self.rng
+            p, cfg.ransac_iterations, cfg.ransac_tol_m, cfg.ransac_max_points, cfg.plane_max_tilt_deg, self.rng
         )
         if plane is None or plane.tilt_deg > cfg.plane_max_tilt_deg or abs(plane.c) > cfg.plane_max_offset_m:
             return nominal, False
@@ -320,6 +324,35 @@ class StereoTexturer:
             self._stride_cache[key] = m
         return m
 
+    def _samples(
+        self, hf: int, wf: int, ds_shape: tuple[int, int], rect: bool, valid: np.ndarray | None
+    ) -> tuple[np.ndarray, ...]:
+        """The full-resolution pixels splatted when their disparity pixel is ground (cached per
+        image geometry): ``(fi, di, q0, q1, q2)``, row-major: flat pixel indices in the processed
+        rows (``hf x wf``), flat indices of their disparity pixels (``ds_shape``), and their
+        vehicle-frame ray components (float32) for the ray-plane intersection. Pixels of the
+        stride pattern (:meth:`_stride_mask`), inside the disparity image's coverage and, when
+        rectified here, from inside the raw image."""
+        key = (hf, wf, bool(rect))
+        out = self._sample_cache.get(key)
+        if out is None:
+            k = self.cfg.downscale
+            h, w = ds_shape
+            m = self._stride_mask(hf, wf).copy()
+            m[h * k :] = False
+            m[:, w * k :] = False
+            if valid is not None:
+                m &= valid
+            ri, ci = np.nonzero(m)
+            r_vc, _ = self.rig.rect_to_vehicle(rect)
+            r = r_vc.astype(np.float32)
+            ry, rx = self._grid_rays(self.first_row + ri, ci)
+            ry, rx = ry[:, 0], rx[0]
+            q = [r[i, 0] * rx + r[i, 1] * ry + r[i, 2] for i in range(3)]
+            out = (ri * wf + ci, (ri // k) * w + ci // k, *q)
+            self._sample_cache[key] = out
+        return out
+
     def process(
         self,
         left: np.ndarray,
@@ -353,9 +386,11 @@ class StereoTexturer:
             disp[~vk[: disp.shape[0], : disp.shape[1]]] = np.nan
         t2 = time.perf_counter()
         grid = self.point_grid(disp, rect)
-        fin = np.isfinite(grid[..., 2])
-        p = grid[fin].astype(np.float64)
-        plane, fitted = self.ground_plane(p)
+        # the plane fit's candidates picked on the float32 grid (same points, same order as
+        # ground_plane's own selection from all finite points)
+        with np.errstate(invalid="ignore"):
+            near = self._in_box(grid) & (np.abs(grid[..., 2]) < np.float32(cfg.plane_max_offset_m + cfg.ransac_tol_m))
+        plane, fitted = self.ground_plane(grid[near].astype(np.float64), preselected=True)
         n32 = plane.normal.astype(np.float32)
         t = rig.t_vehicle_cam.astype(np.float32)
         with np.errstate(invalid="ignore"):
@@ -365,43 +400,32 @@ class StereoTexturer:
                 m = 2 * cfg.obstacle_margin_px + 1
                 above = cv2.dilate((hgt > cfg.height_tol_m).astype(np.uint8), np.ones((m, m), np.uint8))
                 ground_ds &= above == 0
-        # full-resolution ground pixels
+        # full-resolution ground pixels: the sampled pixels (stride pattern, valid) of ground
+        # disparity pixels; their rays are precomputed (_samples)
         hf, wf = lrgb.shape[:2]
-        full = np.zeros((hf, wf), dtype=bool)
-        up = np.repeat(np.repeat(ground_ds, k, axis=0), k, axis=1)
-        full[: up.shape[0], : up.shape[1]] = up
-        if valid is not None:
-            full &= valid
-        ground_full = full.copy()  # for gap filling
-        full &= self._stride_mask(hf, wf)
+        fi, di, q0, q1, q2 = self._samples(hf, wf, disp.shape, rect, valid)
+        sel = np.flatnonzero(ground_ds.ravel()[di])
+        fi = fi[sel]
         if cfg.snap_to_plane:  # ray-plane intersection of the sampled pixels only
-            r_vc, _ = rig.rect_to_vehicle(rect)
-            r = r_vc.astype(np.float32)
-            ri, ci = np.nonzero(full)
-            ry, rx = self._grid_rays(self.first_row + ri, ci)
-            ry, rx = ry[:, 0], rx[0]
-            q = [r[i, 0] * rx + r[i, 1] * ry + r[i, 2] for i in range(3)]  # vehicle rays
+            q = (q0[sel], q1[sel], q2[sel])  # vehicle rays
             nq = n32[0] * q[0] + n32[1] * q[1] + n32[2] * q[2]
             with np.errstate(divide="ignore", invalid="ignore"):
                 sc = -np.float32(float(plane.normal @ rig.t_vehicle_cam) + plane.c) / nq
                 px = t[0] + sc * q[0]
                 py = t[1] + sc * q[1]
                 keep = (sc > 0) & self._in_box_xy(px, py)
-            full[ri[~keep], ci[~keep]] = False  # row-major order, as full[full] below
+            fi = fi[keep]
             xy_v = np.stack([px[keep], py[keep]], axis=-1).astype(np.float64)
         else:  # each full-resolution pixel takes the stereo point of its disparity pixel
-            gu = np.repeat(np.repeat(grid[..., :2], k, axis=0), k, axis=1)
-            g2 = np.zeros((hf, wf, 2), np.float32)
-            g2[: gu.shape[0], : gu.shape[1]] = gu
-            xy_v = g2[full].astype(np.float64)
-        rgb = lrgb[full]
+            xy_v = grid[..., :2].reshape(-1, 2)[di[sel]].astype(np.float64)
+        rgb = lrgb.reshape(-1, 3)[fi]
         n_fill = 0
         if pose is not None:
             x, y, th = (float(a) for a in np.asarray(pose, dtype=np.float64).reshape(3))
             c, s_ = math.cos(th), math.sin(th)
             xy_w = np.column_stack([x + c * xy_v[:, 0] - s_ * xy_v[:, 1], y + s_ * xy_v[:, 0] + c * xy_v[:, 1]])
             if cells is not None and cfg.fill_gaps:
-                fxy, frgb = self._fill(np.array([x, y, th]), cells, xy_w, ground_full, lrgb, plane, rect)
+                fxy, frgb = self._fill(np.array([x, y, th]), cells, xy_w, (ground_ds, valid), lrgb, plane, rect)
                 n_fill = len(fxy)
                 if n_fill:
                     xy_w = np.concatenate([xy_w, fxy])
@@ -430,7 +454,7 @@ class StereoTexturer:
         pose: np.ndarray,
         cells: tuple[np.ndarray, float],
         xy_w: np.ndarray,
-        ground: np.ndarray,
+        ground: tuple[np.ndarray, np.ndarray | None],
         lrgb: np.ndarray,
         plane: Plane,
         rect: bool,
@@ -440,7 +464,8 @@ class StereoTexturer:
 
         Far away an image row spans more than a cell (0.33 m at 20 m for the KAIST rig), so
         pixel splatting alone leaves stripes; near, a cell holds many pixels and is left to
-        them (area average). Returns ``(xy (M, 2) cell centres, rgb (M, 3))``.
+        them (area average). ``ground``: ``(ground mask at the disparity resolution, valid
+        rectified pixels or None)``. Returns ``(xy (M, 2) cell centres, rgb (M, 3))``.
         """
         cfg, rig = self.cfg, self.rig
         anchor, cm = np.asarray(cells[0], dtype=np.float64).reshape(2), float(cells[1])
@@ -456,10 +481,11 @@ class StereoTexturer:
         if ni <= 0 or nj <= 0 or ni * nj > 4_000_000:
             return np.zeros((0, 2)), np.zeros((0, 3), np.uint8)
         hit = np.zeros((nj, ni), dtype=bool)
-        if len(xy_w):
-            hc = np.floor((xy_w - anchor) / cm).astype(np.int64) - [i0, j0]
-            ok = (hc[:, 0] >= 0) & (hc[:, 0] < ni) & (hc[:, 1] >= 0) & (hc[:, 1] < nj)
-            hit[hc[ok, 1], hc[ok, 0]] = True
+        if len(xy_w):  # per axis: numpy's (N, 2) broadcasts and column picks are slow
+            hx = np.floor((xy_w[:, 0] - anchor[0]) / cm).astype(np.int64) - i0
+            hy = np.floor((xy_w[:, 1] - anchor[1]) / cm).astype(np.int64) - j0
+            ok = (hx >= 0) & (hx < ni) & (hy >= 0) & (hy < nj)
+            hit.ravel()[hy[ok] * ni + hx[ok]] = True
         gx = anchor[0] + (np.arange(i0, i1) + 0.5) * cm
         gy = anchor[1] + (np.arange(j0, j1) + 0.5) * cm
         dx, dy = gx[None, :] - x, gy[:, None] - y
@@ -478,10 +504,14 @@ class StereoTexturer:
         with np.errstate(divide="ignore", invalid="ignore"):
             u = rig.cx + rig.f * qx / qz
             v = rig.cy + rig.fy * qy / qz - self.first_row
-        h, w = ground.shape
+        g_ds, valid = ground
+        k = cfg.downscale
+        h, w = g_ds.shape[0] * k, g_ds.shape[1] * k  # the full-resolution pixels it covers
         ok = (qz > 0) & (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
         ui, vi = np.rint(u[ok]).astype(np.int64), np.rint(v[ok]).astype(np.int64)
-        good = ground[vi, ui]
+        good = g_ds[vi // k, ui // k]
+        if valid is not None:
+            good &= valid[vi, ui]
         idx = np.flatnonzero(cand.ravel())[np.flatnonzero(ok)[good]]
         if not idx.size:
             return np.zeros((0, 2)), np.zeros((0, 3), np.uint8)
