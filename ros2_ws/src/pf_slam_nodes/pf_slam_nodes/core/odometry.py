@@ -450,3 +450,63 @@ class GyroBuffer:
             self._st_buf[:n] = self._st_buf[k : self._n]
             self._dy_buf[:n] = self._dy_buf[k : self._n]
             self._n = n
+
+
+class OdomScaleEstimator:
+    """Online estimate of the odometry's translation scale (true travel / odometry travel).
+
+    A wheel-diameter calibration error scales every odometry increment's translation by the same
+    factor. Scan matching sees it: a match of the predicted pose against the map moves it along
+    the increment by about ``(scale - 1) * travel``. One match measures it poorly (centimetres
+    per 2 m step, next to the match's own noise), but the error is the same at every step, so
+    the measurements are averaged: :meth:`add` takes each step's odometry travel ``d`` and the
+    travel the match measured along it ``m``; the estimate is ``sum m / sum d`` over the last
+    ``window_m`` of travel (exponential forgetting by distance), applied once ``min_travel_m``
+    has been measured, clamped to ``1 +- max_error``. Causal: a step is scaled by what earlier
+    steps measured.
+
+    The measurement is taken on the already scaled prediction (``m = scale * d + innovation``),
+    so a step without along-track information (a match that stays where it was predicted, a
+    long street) measures the current estimate and only slows the averaging down.
+    """
+
+    def __init__(self, window_m: float = 1000.0, min_travel_m: float = 50.0, max_error: float = 0.03) -> None:
+        if not (math.isfinite(window_m) and window_m > 0):
+            raise ValueError(f"window_m must be > 0, got {window_m!r}")
+        if not (math.isfinite(min_travel_m) and min_travel_m >= 0):
+            raise ValueError(f"min_travel_m must be >= 0, got {min_travel_m!r}")
+        if not (math.isfinite(max_error) and max_error >= 0):
+            raise ValueError(f"max_error must be >= 0, got {max_error!r}")
+        self.window_m = float(window_m)
+        self.min_travel_m = float(min_travel_m)
+        self.max_error = float(max_error)
+        self._sum_d = self._sum_m = 0.0
+        self.travel_m = 0.0  # odometry travel measured so far
+        self.steps = 0
+
+    @property
+    def raw(self) -> float:
+        """The unclamped ratio (1 before any travel)."""
+        return self._sum_m / self._sum_d if self._sum_d > 0 else 1.0
+
+    @property
+    def scale(self) -> float:
+        """The scale to apply to odometry translation (1 until ``min_travel_m`` is measured)."""
+        if self.travel_m < self.min_travel_m or self._sum_d <= 0:
+            return 1.0
+        return float(min(max(self.raw, 1.0 - self.max_error), 1.0 + self.max_error))
+
+    def add(self, odom_m: float, measured_m: float) -> None:
+        """One step: odometry travel ``odom_m`` (> 0) and the travel measured along it (m)."""
+        d, m = float(odom_m), float(measured_m)
+        if not (math.isfinite(d) and math.isfinite(m)) or d <= 0:
+            return
+        # one bad match (a jump of tens of centimetres) would outweigh many good ones: a step
+        # counts at most max_error away from the current ratio
+        r = self.raw
+        m = min(max(m, (r - self.max_error) * d), (r + self.max_error) * d)
+        keep = math.exp(-d / self.window_m)
+        self._sum_d = self._sum_d * keep + d
+        self._sum_m = self._sum_m * keep + m
+        self.travel_m += d
+        self.steps += 1
