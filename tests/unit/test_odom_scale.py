@@ -106,8 +106,14 @@ def test_correction_stage_learns_the_scale_of_odometry_that_under_reports():
         )
         slam = ParticleFilterSlam(
             cfg.FilterConfig(num_particles=20, min_travel_m=0.5, min_rotation_rad=1.0, seed=0),
-            cfg.OdometryMotionConfig(sigma_xy_per_m=0.002, sigma_theta_per_m=0.0, sigma_theta_per_rad=0.0,
-                                     sigma_xy_min_m=0.001, sigma_theta_min_rad=0.0, sigma_xy_per_rad=0.0),
+            cfg.OdometryMotionConfig(
+                sigma_xy_per_m=0.002,
+                sigma_theta_per_m=0.0,
+                sigma_theta_per_rad=0.0,
+                sigma_xy_min_m=0.001,
+                sigma_theta_min_rad=0.0,
+                sigma_xy_per_rad=0.0,
+            ),
             cfg.GridConfig(resolution_m=0.1, size_x_m=20.0, size_y_m=20.0),
             corr,
             cfg.ResampleConfig(),

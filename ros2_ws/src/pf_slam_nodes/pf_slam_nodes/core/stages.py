@@ -37,8 +37,8 @@ from .geometry import relative_pose
 from .grid import LogOddsGrid, grid_geometry, grow_array, growth_plan
 from .localization import Localizer, pending_from_config
 from .motion import sample_odometry_motion
-from .odometry import OdomScaleEstimator
 from .mount import mounted_scan
+from .odometry import OdomScaleEstimator
 from .scan import planar_scan, scan_to_points, transform_points
 
 MOTION_STREAM = 1
