@@ -139,3 +139,28 @@ def test_sample_odometry_stream_loop_equals_graph(tmp_path, ros_domain):
     assert len(stream) == 600
     _assert_same(stream, res)
     assert not any(slam.scheduler.faults().values())
+
+
+def test_car_odometry_scale_estimate_stream_loop_equals_graph(tmp_path, ros_domain):
+    """correlation.odom_scale on (kaist.yaml leaves it off): the correlator node gets each set's
+    odometry pose from the ParticleArray, the loop from the scheduler; same estimate, same poses."""
+    text = (CONFIG / "kaist.yaml").read_text()
+    anchor = "      temperature: 100.0"
+    assert anchor in text
+    params = tmp_path / "kaist_odom_scale.yaml"
+    params.write_text(text.replace(anchor, "      odom_scale: true\n      odom_scale_min_travel_m: 20.0\n" + anchor, 1))
+    bag = ROOT / "bags" / "car_sample"
+    slam, stream = _stream_loop(bag, params)
+    est = slam.corrector.odom_scale
+    assert est is not None and est.steps > 10 and est.scale != 1.0  # measured and applied
+    res = graph.run(
+        str(bag),
+        tmp_path / "car",
+        params_file=str(params),
+        progress=False,
+        domain_id=ros_domain,
+        texture=False,
+        snapshot_every=0,
+        record=False,
+    )
+    _assert_same(stream, res)

@@ -341,6 +341,25 @@ class CorrelationConfig(_ConfigBase):
         (default) moves it onto the match (the CARMEN behaviour). Below 1 for odometry that is
         better between corrections than a match against the map built moments ago (the car's
         calibrated wheels and FOG): the match then bounds the drift without adding its noise.
+    odom_scale : bool
+        Estimate the odometry's translation scale (a wheel-diameter calibration error) online
+        from the matches and apply it to the predicted sets (:class:`~.odometry.OdomScaleEstimator`):
+        each correction, the match of the predicted set without the motion prior measures the
+        travel along the odometry increment; the estimate is the ratio of measured to odometry
+        travel over the last ``odom_scale_window_m``. Needs the odometry pose with each predicted
+        set. Default False.
+    odom_scale_window_m : float
+        correlation.odom_scale: travel over which the measurements are averaged (exponential
+        forgetting, m).
+    odom_scale_min_travel_m : float
+        correlation.odom_scale: travel measured before the estimate is applied (m).
+    odom_scale_max : float
+        correlation.odom_scale: the estimate is clamped to ``1 +- odom_scale_max``.
+    odom_scale_min_age : int
+        correlation.odom_scale: the measurement uses the scan points on map cells first observed
+        at least this many corrections ago.
+    odom_scale_min_points : int
+        correlation.odom_scale: fewer such points: that correction measures nothing.
     """
 
     search_x_m: float = 0.2
@@ -363,8 +382,21 @@ class CorrelationConfig(_ConfigBase):
     prior_sigma_yaw_rad: float = 0.0
     gain_xy: float = 1.0
     gain_yaw: float = 1.0
+    odom_scale: bool = False
+    odom_scale_window_m: float = 1000.0
+    odom_scale_min_travel_m: float = 50.0
+    odom_scale_max: float = 0.03
+    odom_scale_min_age: int = 2
+    odom_scale_min_points: int = 20
 
     def __post_init__(self) -> None:
+        if not isinstance(self.odom_scale, bool):
+            raise ValueError(f"odom_scale must be a bool, got {self.odom_scale!r}")
+        _check_pos("odom_scale_window_m", self.odom_scale_window_m)
+        _check_nonneg("odom_scale_min_travel_m", self.odom_scale_min_travel_m)
+        _check_nonneg("odom_scale_max", self.odom_scale_max)
+        _check_int("odom_scale_min_age", self.odom_scale_min_age, 1)
+        _check_int("odom_scale_min_points", self.odom_scale_min_points, 1)
         for name in ("gain_xy", "gain_yaw"):
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:

@@ -450,3 +450,89 @@ class GyroBuffer:
             self._st_buf[:n] = self._st_buf[k : self._n]
             self._dy_buf[:n] = self._dy_buf[k : self._n]
             self._n = n
+
+
+class OdomScaleEstimator:
+    """Online estimate of the odometry's translation scale (true travel / odometry travel).
+
+    A wheel-diameter calibration error scales every odometry increment's translation by the same
+    factor. Scan matching sees it: a match of the predicted pose against the map moves it along
+    the increment by about ``(scale - 1) * travel``. One match measures it poorly (centimetres
+    per 2 m step, next to the match's own noise), but the error is the same at every step, so
+    the measurements are averaged: :meth:`add` takes each step's odometry travel ``d`` and the
+    travel the match measured along it ``m``; the estimate is ``sum m / sum d`` over the last
+    ``window_m`` of travel (exponential forgetting by distance), applied once ``min_travel_m``
+    has been measured, clamped to ``1 +- max_error``. Causal: a step is scaled by what earlier
+    steps measured.
+
+    The measurement is taken on the already scaled prediction (``m = scale * d + innovation``),
+    so a step without along-track information (a match that stays where it was predicted, a
+    long street) measures the current estimate and only slows the averaging down.
+
+    The matches are noisy (tens of centimetres now and then): a step counts at most ``max_error``
+    away from the current ratio, and the ratio's departure from 1 is shrunk by its own standard
+    error ``se`` (from the spread of the steps' ratios and the effective number of steps in the
+    window): ``1 + e * max(0, 1 - (SHRINK_Z * se / e)^2)``, ``e = ratio - 1``. Well-calibrated
+    wheels (``|e|`` within the noise) thus stay at 1 instead of following the noise.
+    """
+
+    #: how many standard errors of the ratio shrink its departure from 1 to nothing
+    SHRINK_Z = 1.0
+
+    def __init__(self, window_m: float = 1000.0, min_travel_m: float = 50.0, max_error: float = 0.03) -> None:
+        if not (math.isfinite(window_m) and window_m > 0):
+            raise ValueError(f"window_m must be > 0, got {window_m!r}")
+        if not (math.isfinite(min_travel_m) and min_travel_m >= 0):
+            raise ValueError(f"min_travel_m must be >= 0, got {min_travel_m!r}")
+        if not (math.isfinite(max_error) and max_error >= 0):
+            raise ValueError(f"max_error must be >= 0, got {max_error!r}")
+        self.window_m = float(window_m)
+        self.min_travel_m = float(min_travel_m)
+        self.max_error = float(max_error)
+        self._sum_d = self._sum_m = 0.0
+        self._sum_r2 = self._sum_d2 = 0.0  # sum d r^2 (r = m / d) and sum d^2: the spread
+        self.travel_m = 0.0  # odometry travel measured so far
+        self.steps = 0
+
+    @property
+    def raw(self) -> float:
+        """The unclamped ratio (1 before any travel)."""
+        return self._sum_m / self._sum_d if self._sum_d > 0 else 1.0
+
+    @property
+    def std_error(self) -> float:
+        """Standard error of :attr:`raw` (inf before two steps)."""
+        if self._sum_d <= 0 or self._sum_d2 <= 0:
+            return math.inf
+        r = self.raw
+        var = max(self._sum_r2 / self._sum_d - r * r, 0.0)
+        n_eff = self._sum_d**2 / self._sum_d2
+        return math.sqrt(var / n_eff) if n_eff > 1.0 else math.inf
+
+    @property
+    def scale(self) -> float:
+        """The scale to apply to odometry translation (1 until ``min_travel_m`` is measured)."""
+        if self.travel_m < self.min_travel_m or self._sum_d <= 0:
+            return 1.0
+        e = self.raw - 1.0
+        if e == 0.0:
+            return 1.0
+        e *= max(0.0, 1.0 - (self.SHRINK_Z * self.std_error / e) ** 2)
+        return float(min(max(1.0 + e, 1.0 - self.max_error), 1.0 + self.max_error))
+
+    def add(self, odom_m: float, measured_m: float) -> None:
+        """One step: odometry travel ``odom_m`` (> 0) and the travel measured along it (m)."""
+        d, m = float(odom_m), float(measured_m)
+        if not (math.isfinite(d) and math.isfinite(m)) or d <= 0:
+            return
+        # one bad match (a jump of tens of centimetres) would outweigh many good ones: a step
+        # counts at most max_error away from the current ratio
+        r = self.raw
+        m = min(max(m, (r - self.max_error) * d), (r + self.max_error) * d)
+        keep = math.exp(-d / self.window_m)
+        self._sum_d = self._sum_d * keep + d
+        self._sum_m = self._sum_m * keep + m
+        self._sum_r2 = self._sum_r2 * keep + m * m / d
+        self._sum_d2 = self._sum_d2 * keep * keep + d * d
+        self.travel_m += d
+        self.steps += 1

@@ -144,7 +144,13 @@ class ParticleFilterSlam:
         if not update:
             return compose(self._pose, delta)
         c = self.corrector.correct(
-            self.predictor.particles, self.predictor.log_weights, ranges, angles, range_min, range_max
+            self.predictor.particles,
+            self.predictor.log_weights,
+            ranges,
+            angles,
+            range_min,
+            range_max,
+            odom_pose=odom_pose,
         )
         self.predictor.set_corrected(c.particles, c.log_weights)
         patch = self.mapper.integrate(c.pose, ranges, angles, range_min, range_max)
@@ -195,7 +201,14 @@ class ParticleFilterSlam:
                 ranges, angles, range_min, range_max = a.payload
                 first = self._pose is None
                 c = self.corrector.correct(
-                    a.particles, a.log_weights, ranges, angles, range_min, range_max, extrinsic=a.mount
+                    a.particles,
+                    a.log_weights,
+                    ranges,
+                    angles,
+                    range_min,
+                    range_max,
+                    extrinsic=a.mount,
+                    odom_pose=a.odom,
                 )
                 patch = self.mapper.integrate(c.pose, ranges, angles, range_min, range_max, extrinsic=a.mount)
                 self.corrector.apply_patch(patch)

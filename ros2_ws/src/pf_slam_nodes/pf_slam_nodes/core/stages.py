@@ -31,13 +31,14 @@ from .config import (
     OdometryMotionConfig,
     ResampleConfig,
 )
-from .correlation import GridLikelihoodField, correlate
+from .correlation import GridLikelihoodField, correlate, refine
 from .filter import n_eff, resample, update_log_weights
 from .geometry import relative_pose
 from .grid import LogOddsGrid, grid_geometry, grow_array, growth_plan
 from .localization import Localizer, pending_from_config
 from .motion import sample_odometry_motion
 from .mount import mounted_scan
+from .odometry import OdomScaleEstimator
 from .scan import planar_scan, scan_to_points, transform_points
 
 MOTION_STREAM = 1
@@ -142,6 +143,7 @@ class Correction:
     pose: np.ndarray  # (3,) best particle before resampling
     resampled: bool
     matched: bool  # False when there was no map to match against
+    odom_scale: float = 1.0  # the odometry scale applied to this set (correlation.odom_scale)
 
 
 class CorrectionStage:
@@ -182,6 +184,15 @@ class CorrectionStage:
         self.num_corrections = 0
         self.num_resamples = 0
         self.clock = StageClock()  # "correlate" (+ weights), "resample" (+ pose estimate), "field"
+        c = corr_cfg
+        self.odom_scale = (
+            OdomScaleEstimator(c.odom_scale_window_m, c.odom_scale_min_travel_m, c.odom_scale_max)
+            if c.odom_scale
+            else None
+        )
+        self._odom_prev: np.ndarray | None = None  # odometry pose of the last corrected set
+        self.seen_at: np.ndarray | None = None  # (H, W) int32: correction that first observed a cell (odom_scale)
+        self.scale_measurements = 0
 
     def set_map(self, occupancy: np.ndarray, resolution: float, origin) -> None:
         """Localization: the fixed map (int8 ``(H, W)``, -1 / 0..100, row 0 = lowest y) becomes
@@ -236,6 +247,8 @@ class CorrectionStage:
             self.field = GridLikelihoodField(h, w, float(self.grid_cfg.resolution_m), origin, self.corr_cfg)
             if self.corr_cfg.skip_unknown:
                 self.known = np.zeros((h, w), dtype=bool)
+            if self.odom_scale is not None:
+                self.seen_at = np.full((h, w), -1, dtype=np.int32)
         f = self.field
         occ = np.asarray(patch.occupancy)
         c0, r0 = np.rint((np.asarray(patch.origin, float) - f.origin) / f.resolution).astype(np.int64)
@@ -250,6 +263,8 @@ class CorrectionStage:
                 f.grow(add)
                 if self.known is not None:
                     self.known = grow_array(self.known, add, False)
+                if self.seen_at is not None:
+                    self.seen_at = grow_array(self.seen_at, add, -1)
                 r0, c0 = r0 + add[0], c0 + add[2]
         a0, a1 = max(int(r0), 0), min(int(r0) + occ.shape[0], f.height)  # the patch inside the grid
         b0, b1 = max(int(c0), 0), min(int(c0) + occ.shape[1], f.width)
@@ -258,6 +273,9 @@ class CorrectionStage:
         sub = occ[a0 - r0 : a1 - r0, b0 - c0 : b1 - c0]
         if self.known is not None:
             self.known[a0:a1, b0:b1] = sub >= 0
+        if self.seen_at is not None:
+            seen = self.seen_at[a0:a1, b0:b1]
+            seen[(sub >= 0) & (seen < 0)] = self.num_corrections
         return f.set_obstacle_block(a0, b0, sub >= self.corr_cfg.occupied_threshold)
 
     def _observed(self, pts: np.ndarray, pose: np.ndarray) -> np.ndarray:
@@ -278,9 +296,12 @@ class CorrectionStage:
         range_min: float = 0.0,
         range_max: float = math.inf,
         extrinsic: np.ndarray | None = None,
+        odom_pose: np.ndarray | None = None,
     ) -> Correction:
         """Correct a predicted set with a scan (ranges (B,), beam angles (B,) in the sensor frame;
-        ``extrinsic``: this scan's mount (12,) on a moving mount, else the configured one)."""
+        ``extrinsic``: this scan's mount (12,) on a moving mount, else the configured one;
+        ``odom_pose``: the odometry pose (3,) the set was predicted to, for
+        ``correlation.odom_scale``)."""
         t0 = t0_all = time.perf_counter()
         particles = np.asarray(particles, dtype=np.float64).reshape(-1, 3)
         log_w = np.asarray(log_weights, dtype=np.float64)
@@ -298,10 +319,20 @@ class CorrectionStage:
             self.pending_init = None
             self.initialisations += 1
             self.converged_at = None
+        scale, step = 1.0, None
+        if self.odom_scale is not None and odom_pose is not None and not initialising:
+            odom = np.asarray(odom_pose, dtype=np.float64).reshape(3)
+            if self._odom_prev is not None:
+                delta = relative_pose(self._odom_prev, odom)
+                scale = self.odom_scale.scale
+                particles, step = scaled_increment(particles, delta, scale)
+            self._odom_prev = odom
         if self.known is not None and pts.shape[0] > 0:
             pts = pts[self._observed(pts, particles[int(np.argmax(log_w))])]
         matched = self.field is not None and pts.shape[0] > 0
         if matched:
+            if step is not None and self.seen_at is not None:
+                self._measure_scale(pts, particles, log_w, step, scale)
             particles, scores = correlate(particles, pts, self.field, self.corr_cfg)
             log_w = update_log_weights(log_w, scores, self.corr_cfg.temperature)
         self.clock.add("correlate", t0)
@@ -323,7 +354,35 @@ class CorrectionStage:
         self.pose = pose
         self.num_corrections += 1
         self.clock.add("resample", t0)
-        return Correction(particles, log_w, pose, resampled, bool(matched))
+        return Correction(particles, log_w, pose, resampled, bool(matched), scale)
+
+    def _measure_scale(self, pts, predicted, log_w, step, scale) -> None:
+        """correlation.odom_scale: how far along the odometry increment the scan alone moves the
+        set's predicted mean pose: a refinement without the motion prior, on the scan points that
+        fall on cells first observed at least ``odom_scale_min_age`` corrections ago (points on
+        freshly mapped cells, near the end of the mapped part of a wall, pull the match back along
+        the street). ``step``: each particle's increment direction (N, 2, map frame) and the
+        odometry travel (m). Fewer than ``odom_scale_min_points`` such points: no measurement."""
+        dirs, d = step
+        cfg = self.corr_cfg
+        if d <= 0:
+            return
+        mean = pose_estimate(predicted, log_w, FilterConfig(pose_estimate="mean"))
+        f = self.field
+        cells = np.floor((transform_points(pts, mean) - f.origin) / f.resolution).astype(np.int64)
+        ok = (cells[:, 0] >= 0) & (cells[:, 0] < f.width) & (cells[:, 1] >= 0) & (cells[:, 1] < f.height)
+        seen = np.full(pts.shape[0], -1, dtype=np.int64)
+        seen[ok] = self.seen_at[cells[ok, 1], cells[ok, 0]]
+        old = pts[(seen >= 0) & (seen <= self.num_corrections - cfg.odom_scale_min_age)]
+        old = old[np.hypot(old[:, 0], old[:, 1]) <= cfg.range_max_m]
+        if old.shape[0] < cfg.odom_scale_min_points:
+            return
+        matched, _ = refine(mean[None, :], old, f, cfg.refine_iterations, cfg.refine_residual, cfg.precision)
+        w = np.exp(log_w - log_w.max())
+        u = w @ dirs / w.sum()
+        u /= max(float(np.hypot(u[0], u[1])), 1e-12)
+        self.odom_scale.add(d, scale * d + float((matched[0, :2] - mean[:2]) @ u))
+        self.scale_measurements += 1
 
 
 def scan_in_base(
@@ -340,6 +399,27 @@ def scan_in_base(
     if extrinsic is None:
         return planar_scan(ranges, angles, laser, planar_offset, range_min, range_max)
     return mounted_scan(ranges, angles, laser, extrinsic, range_min, range_max)
+
+
+def scaled_increment(particles: np.ndarray, delta: np.ndarray, scale: float) -> tuple[np.ndarray, tuple]:
+    """Predicted particles whose odometry increment ``delta`` (the odometry frame's, (3,)) had its
+    translation scaled by ``scale``: each particle moves by ``(scale - 1) * delta_xy`` in the frame
+    of its heading before the increment. Returns the particles and ``(dirs, travel)``: each
+    particle's increment direction (N, 2, map frame) and the odometry travel (m)."""
+    d = float(math.hypot(delta[0], delta[1]))
+    phi = particles[:, 2] - delta[2]
+    c, s = np.cos(phi), np.sin(phi)
+    out = particles.copy()
+    if scale != 1.0:
+        k = scale - 1.0
+        out[:, 0] += k * (c * delta[0] - s * delta[1])
+        out[:, 1] += k * (s * delta[0] + c * delta[1])
+    if d > 0:
+        ux, uy = delta[0] / d, delta[1] / d
+        dirs = np.stack([c * ux - s * uy, s * ux + c * uy], axis=1)
+    else:
+        dirs = np.zeros((particles.shape[0], 2))
+    return out, (dirs, d)
 
 
 def pose_estimate(particles: np.ndarray, log_w: np.ndarray, cfg: FilterConfig) -> np.ndarray:

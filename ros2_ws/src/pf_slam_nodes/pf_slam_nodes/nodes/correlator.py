@@ -190,7 +190,9 @@ class Correlator(Node):
                         "than the graph): its set is not corrected",
                         throttle_duration_sec=5.0,
                     )
-                res = self.stage.correct(particles, log_w, *scan_fields(scan), extrinsic=mount_of(pa))
+                res = self.stage.correct(
+                    particles, log_w, *scan_fields(scan), extrinsic=mount_of(pa), odom_pose=np.asarray(pa.odom_pose)
+                )
                 particles, log_w, pose = res.particles, res.log_weights, res.pose
                 self.corrections_sent += 1
                 self.pub_cloud.publish(self.cloud_cdr.pack(particles, stamp))
