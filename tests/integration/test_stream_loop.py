@@ -145,10 +145,10 @@ def test_car_odometry_scale_estimate_stream_loop_equals_graph(tmp_path, ros_doma
     """correlation.odom_scale on (kaist.yaml leaves it off): the correlator node gets each set's
     odometry pose from the ParticleArray, the loop from the scheduler; same estimate, same poses."""
     text = (CONFIG / "kaist.yaml").read_text()
-    anchor = "      temperature: 100.0"
+    anchor = "      odom_scale: false"
     assert anchor in text
     params = tmp_path / "kaist_odom_scale.yaml"
-    params.write_text(text.replace(anchor, "      odom_scale: true\n      odom_scale_min_travel_m: 20.0\n" + anchor, 1))
+    params.write_text(text.replace(anchor, "      odom_scale_min_travel_m: 20.0\n      odom_scale: true  #", 1))
     bag = ROOT / "bags" / "car_sample"
     slam, stream = _stream_loop(bag, params)
     est = slam.corrector.odom_scale
