@@ -194,9 +194,12 @@ class ProcessBackend:
         return out
 
     def close(self, timeout_s: float = 5.0) -> None:
-        """Stop the worker: ask, then terminate, then kill."""
-        with self._lock:
-            if self.process.is_alive():
+        """Stop the worker: ask, then terminate, then kill. A call still waiting on a worker that
+        does not answer (the lock not free within ``timeout_s``) ends with :class:`WorkerDied`
+        once the worker is terminated."""
+        got = self._lock.acquire(timeout=timeout_s)
+        try:
+            if got and self.process.is_alive():
                 try:
                     self._conn.send(None)
                 except (BrokenPipeError, OSError):
@@ -208,9 +211,12 @@ class ProcessBackend:
             if self.process.is_alive():
                 self.process.kill()
                 self.process.join(1.0)
-            self._conn.close()
             if self._dead is None:
                 self._dead = "texture worker process stopped"
+        finally:
+            if got:
+                self._conn.close()
+                self._lock.release()
 
 
 def make_backend(kind: str, cfg: TextureConfig, nice: int = 0) -> ThreadBackend | ProcessBackend:
