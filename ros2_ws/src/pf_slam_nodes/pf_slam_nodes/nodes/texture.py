@@ -192,8 +192,6 @@ class TextureNode(Node):
                 f"node {self.get_name()}: publish_period_s must be > 0, queue_depth "
                 ">= 1, max_pending_pairs >= 1, pose_buffer_size >= 2"
             )
-        # the engine first: a worker process imports while the rest of the graph starts
-        self._backend = make_backend(self.worker, self.cfg, self.worker_nice)
         ext = [float(v) for v in ext]
         if len(ext) != 12:
             raise ValueError(
@@ -210,6 +208,8 @@ class TextureNode(Node):
         self.rig: StereoRig | None = None
         if self.calibration_dir:
             self.rig = read_stereo_rig(self.calibration_dir)
+        # the engine once the parameters are checked: a worker process imports while the graph starts
+        self._backend = make_backend(self.worker, self.cfg, self.worker_nice)
 
         self.lock = threading.Lock()
         self._cond = threading.Condition(self.lock)
