@@ -237,3 +237,55 @@ def test_mount_rotation_without_direction_is_ignored(ros_context, kaist, bad):
         ex.shutdown()
         node.destroy_node()
         feed.destroy()
+
+
+def test_killed_worker_process_is_a_clear_error_not_a_hang(ros_context, kaist):
+    """worker: process: a worker killed under the node is logged as a texture node error; the
+    pairs after it are dropped (progress goes on, so the replay is not held), the status says
+    why, and the node still shuts down promptly."""
+    import os
+    import signal
+    import time
+
+    ctx = ros_context
+    node = _make(ctx, worker="process")
+    feed = Feeder(ctx, kaist)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    ex.add_node(feed.node)
+    try:
+        assert node._backend.kind == "process" and node._backend.process.is_alive()
+        assert spin_until(ex, feed.matched, 10)
+        feed.publish_static()
+        feed.publish_poses(T0, T0 + 500_000_000)
+        feed.publish_pair(T0 + 100_000_000)
+        assert spin_until(ex, lambda: node.frames_processed == 1, 60), node.counters()
+        os.kill(node._backend.process.pid, signal.SIGKILL)
+        for k in (1, 2):  # one at a time (queue_depth 1)
+            feed.publish_pair(T0 + (k + 1) * 100_000_000)
+            assert spin_until(ex, lambda: node.frames_dropped == k, 20), node.counters()
+        c = node.counters()
+        assert (c["frames_processed"], c["frames_pending"]) == (1, 0)
+        assert c["worker_error"].startswith("texture node: texture worker process") and "signal 9" in c["worker_error"]
+        assert node.render() is None  # the texture went with the process
+        node.publish_texture()
+        assert spin_until(ex, lambda: bool(feed.status) and "worker_error" in feed.status[-1], 10)
+    finally:
+        ex.shutdown()
+        t0 = time.monotonic()
+        node.destroy_node()
+        assert time.monotonic() - t0 < 5.0
+        feed.destroy()
+
+
+def test_destroy_stops_the_worker_process(ros_context):
+    node = _make(ros_context, worker="process")
+    proc = node._backend.process
+    assert proc.is_alive()
+    node.destroy_node()
+    assert not proc.is_alive() and proc.exitcode == 0
+
+
+def test_unknown_worker_is_refused(ros_context):
+    with pytest.raises(ValueError, match="'worker' must be 'process' or 'thread'"):
+        _make(ros_context, worker="fork")

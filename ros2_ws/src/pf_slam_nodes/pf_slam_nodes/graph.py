@@ -387,6 +387,8 @@ def run_cli(args: Any, log: Callable[[str], None] = print) -> int:
             f"({t.get('frames_skipped')} skipped under load, {t.get('frames_dropped')} without a pose), "
             f"{t['cells_coloured']} cells coloured; {', '.join(t['files']) or 'no image'}"
         )
+        if t.get("worker_error"):
+            log(f"{t['worker_error']} (the pairs after it are among the {t.get('frames_dropped')} dropped)")
     if not s["complete"]:
         log(f"run incomplete: stopped by {s['stopped_by']}; the outputs hold the scans processed until then")
         return STOP_SIGNALS.get(s["stopped_by"], 1)

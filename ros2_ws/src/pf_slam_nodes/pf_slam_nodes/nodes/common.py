@@ -94,7 +94,9 @@ PARAM_DOCS: dict[str, str] = {
     "queue_depth": "texture: stereo pairs waiting for the worker; a newer pair replaces the oldest (skipped)",
     "max_pending_pairs": "texture: pairs kept while waiting for their pose",
     "final_idle_s": "texture: after the end of the bag, finish once idle this long (s)",
-    "worker_nice": "texture: nice increment of the worker thread (the SLAM nodes keep priority)",
+    "worker_nice": "texture: nice increment of the worker thread / process (the SLAM nodes keep priority)",
+    "worker": "texture: where pairs are textured: 'process' (a worker process, no GIL shared with the SLAM "
+    "nodes) or 'thread' (the node's worker thread); same texture",
     "pose_buffer_size": "texture: poses kept for interpolation at image stamps",
     "left_topic": "texture: left image topic",
     "right_topic": "texture: right image topic",

@@ -75,6 +75,7 @@ NODE_PLAIN: dict[str, dict[str, Any]] = {
         "max_pending_pairs": 10,
         "final_idle_s": 2.0,
         "worker_nice": 10,
+        "worker": "process",
         "pose_buffer_size": 3000,
         "left_topic": "/stereo/left/image_raw",
         "right_topic": "/stereo/right/image_raw",

@@ -43,9 +43,15 @@ Publishes
   neither finished nor waiting for a pose, so every pair is textured (none skipped) and the
   same pairs are textured on every run.
 
-Threading: the subscription callbacks only store messages; one worker thread does the
-debayering, stereo matching, accumulation and the timer's rendering, so the node never blocks
-an executor it shares with the SLAM nodes. Ready pairs wait in a queue of ``queue_depth``
+Threading: the subscription callbacks only store messages; one worker thread feeds the pairs
+(debayering, stereo matching, accumulation) and the timer's rendering to the texture engine
+(nodes/texture_worker.py), so the node never blocks an executor it shares with the SLAM nodes.
+With ``worker: process`` (default) the engine runs in a worker process that the node starts when
+it is built and stops when it is destroyed (the per-pair numpy / OpenCV work does not wait for
+the GIL beside the SLAM nodes); ``worker: thread`` runs it in the worker thread. Both give the
+same texture bit for bit. A worker process that dies is logged as an error of this node once;
+later pairs are dropped (``frames_dropped``, ``worker_error`` in the status) and the rest of the
+graph goes on. Ready pairs wait in a queue of ``queue_depth``
 (default 1): a new pair arriving while the queue is full replaces the oldest queued one
 (``frames_skipped``). Pairs waiting for their pose are kept up to ``max_pending_pairs``
 (older ones are skipped too).
@@ -87,16 +93,14 @@ from ..core.geometry import quat_to_matrix
 from ..core.mount import MountBuffer
 from ..core.texture import (
     DepthCamera,
-    DepthTexturer,
     StereoRig,
-    StereoTexturer,
     TextureConfig,
-    TextureMap,
     interpolate_poses,
 )
 from ..io.calib import read_stereo_rig
 from ..ros import cdr, convert, qos, topics
 from .common import announce_when_matched, declare_config, param, run_node
+from .texture_worker import WorkerDied, make_backend
 
 TEXTURE = "texture"
 TEXTURE_METADATA = "texture_metadata"
@@ -146,8 +150,8 @@ class TextureNode(Node):
     ----------
     frames_received, frames_processed, frames_skipped, frames_dropped : int
         Pair counters (``received = processed + skipped + dropped + in flight``).
-    texmap : TextureMap
-        The accumulated texture (guarded by ``lock``).
+    worker : str
+        ``'process'`` or ``'thread'``: where the texture engine (texturer + TextureMap) runs.
     """
 
     def __init__(self, **kwargs) -> None:
@@ -178,6 +182,11 @@ class TextureNode(Node):
         depth_info = param(self, "depth_info_topic", "/kinect/depth/camera_info")
         self.pair_tol_ns = int(param(self, "depth_pair_tol_s", 0.05) * 1e9)
         self.floor_height_m = param(self, "floor_height_m", 0.0)
+        self.worker = param(self, "worker", "process")
+        if self.worker not in ("process", "thread"):
+            raise ValueError(
+                f"node {self.get_name()}: parameter 'worker' must be 'process' or 'thread', got {self.worker!r}"
+            )
         if not period > 0 or self.queue_depth < 1 or self.max_pending_pairs < 1 or pose_buffer < 2:
             raise ValueError(
                 f"node {self.get_name()}: publish_period_s must be > 0, queue_depth "
@@ -199,11 +208,16 @@ class TextureNode(Node):
         self.rig: StereoRig | None = None
         if self.calibration_dir:
             self.rig = read_stereo_rig(self.calibration_dir)
+        # the engine once the parameters are checked: a worker process imports while the graph starts
+        self._backend = make_backend(self.worker, self.cfg, self.worker_nice)
 
         self.lock = threading.Lock()
         self._cond = threading.Condition(self.lock)
-        self.texmap = TextureMap.from_config(self.cfg)
-        self._texturer: StereoTexturer | None = None
+        self._engine_ready = False  # the texturer is set up (rig / camera sent)
+        self._anchor: tuple[float, float] | None = None  # the map origin, to align the cells with
+        self._texture_cells = 0
+        self._texture_bytes = 0
+        self.worker_error = ""
         self._map_info: MapMetaData | None = None
         self._images: dict[str, dict[int, Image]] = {"left": {}, "right": {}}
         self._awaiting: deque[_Pair] = deque()
@@ -383,8 +397,8 @@ class TextureNode(Node):
             first = self._map_info is None
             self._map_info = info
             self._dirty = True
-            if first and not self.texmap.tiles:  # align the texture cells with the map's
-                self.texmap.anchor = np.array([info.origin.position.x, info.origin.position.y])
+            if first:  # align the texture cells with the map's (while nothing is coloured)
+                self._anchor = (info.origin.position.x, info.origin.position.y)
 
     def _on_image(self, side: str, msg: Image) -> None:
         self._last_input = time.monotonic()
@@ -530,6 +544,13 @@ class TextureNode(Node):
                     self._process(pair)
                 elif render:
                     self.publish_texture()
+            except WorkerDied as e:  # logged once; every later pair is dropped
+                if not self.worker_error:
+                    self.worker_error = self.last_error = f"texture node: {e}; no more pairs are textured"
+                    self.get_logger().error(self.worker_error)
+                if pair is not None:
+                    with self.lock:
+                        self.frames_dropped += 1
             except Exception as e:  # noqa: BLE001  (a bad frame must not kill the worker)
                 self.last_error = f"{type(e).__name__}: {e}"
                 self.get_logger().error(f"texture worker: {self.last_error}")
@@ -542,24 +563,32 @@ class TextureNode(Node):
                     self._last_activity = time.monotonic()
                 self._publish_progress()
 
+    def _sync_anchor(self) -> None:
+        """Hand the map origin received since the last call to the engine (it aligns its cells
+        with it while nothing is coloured)."""
+        with self.lock:
+            anchor, self._anchor = self._anchor, None
+        if anchor is not None:
+            self._backend.call("set_anchor", anchor)
+
+    def _engine_stats(self, out: dict) -> None:
+        self._texture_cells, self._texture_bytes = out["cells"], out["memory_bytes"]
+
     def _process(self, pair: _Pair) -> None:
         if self.mode == "depth":
             return self._process_depth(pair)
         t0 = time.perf_counter()
-        if self._texturer is None:
+        if not self._engine_ready:
             assert self.rig is not None
-            self._texturer = StereoTexturer(self.rig, self.cfg)
+            self._backend.call("setup_stereo", self.rig)
+            self._engine_ready = True
         left, right = image_array(pair.left), image_array(pair.right)
-        enc = pair.left.encoding
+        self._sync_anchor()
+        out = self._backend.call("stereo", left, right, pair.pose, pair.left.encoding)
         with self.lock:
-            cells = (self.texmap.anchor.copy(), self.texmap.cell_m)
-        res = self._texturer.process(left, right, pair.pose, enc, cells=cells)
-        t1 = time.perf_counter()
-        with self.lock:
-            self.texmap.add(res.xy_world, res.rgb)
-            for k, v in {**res.timings_ms, "accumulate": 1e3 * (time.perf_counter() - t1)}.items():
-                if k != "total":
-                    self.ms_stages[k] = self.ms_stages.get(k, 0.0) + float(v)
+            self._engine_stats(out)
+            for k, v in out["ms_stages"].items():
+                self.ms_stages[k] = self.ms_stages.get(k, 0.0) + float(v)
             self._dirty = True
             self.frames_processed += 1
             self.ms_total += 1e3 * (time.perf_counter() - t0)
@@ -567,18 +596,20 @@ class TextureNode(Node):
 
     def _process_depth(self, pair: _Pair) -> None:
         t0 = time.perf_counter()
-        if self._texturer is None:
+        if not self._engine_ready:
             assert self.camera is not None
-            self._texturer = DepthTexturer(self.camera, self.cfg, self.floor_height_m)
+            self._backend.call("setup_depth", self.camera, self.floor_height_m)
+            self._engine_ready = True
         rgb = image_array(pair.left)
         if pair.left.encoding.lower() == "bgr8":
             rgb = rgb[..., ::-1]
-        res = self._texturer.process(depth_array(pair.right), rgb, pair.mount, pair.pose, pair.rgb_from_depth)
+        self._sync_anchor()
+        out = self._backend.call("depth", depth_array(pair.right), rgb, pair.mount, pair.pose, pair.rgb_from_depth)
         with self.lock:
-            self.texmap.add(res.xy_world, res.rgb)
+            self._engine_stats(out)
             self._dirty = True
             self.frames_processed += 1
-            self.plane_fits += int(res.plane_fitted)
+            self.plane_fits += int(out["plane_fitted"])
             self.ms_total += 1e3 * (time.perf_counter() - t0)
             self.last_stamp_ns = max(self.last_stamp_ns, pair.stamp_ns)
 
@@ -596,35 +627,45 @@ class TextureNode(Node):
                 "ms_stages": {k: round(v / self.frames_processed, 1) for k, v in self.ms_stages.items()}
                 if self.frames_processed
                 else {},
-                "texture_cells": self.texmap.cell_count(),
-                "texture_memory_mb": round(self.texmap.memory_bytes / 2**20, 1),
+                "texture_cells": self._texture_cells,
+                "texture_memory_mb": round(self._texture_bytes / 2**20, 1),
                 "final": self._final_sent,
                 "mode": self.mode,
+                "worker": self.worker,
+                **({"worker_error": self.worker_error} if self.worker_error else {}),
                 **({"plane_fits": self.plane_fits} if self.mode == "depth" else {}),
             }
 
     def render(self) -> tuple[np.ndarray, np.ndarray, MapMetaData] | None:
         """``(rgb, covered, geometry)`` of the texture in the current /map geometry (or its own
-        extent before a map arrived); None while nothing is coloured and no map is known."""
+        extent before a map arrived); None while nothing is coloured and no map is known, or
+        once the worker process is gone."""
         with self.lock:
             self._dirty = False
             info = self._map_info
+            stamp = self.last_stamp_ns
+        try:
+            self._sync_anchor()
             if info is not None:
-                rgb, cov = self.texmap.render(
-                    (info.origin.position.x, info.origin.position.y), info.resolution, info.width, info.height
+                rgb, cov = self._backend.call(
+                    "render", (info.origin.position.x, info.origin.position.y), info.resolution, info.width, info.height
                 )
                 meta = info
             else:
-                nat = self.texmap.render_native()
+                nat = self._backend.call("render_native")
                 if nat is None:
                     return None
                 rgb, cov, origin = nat
                 meta = MapMetaData()
-                meta.resolution = float(self.texmap.cell_m)
+                meta.resolution = float(self.cfg.cell_m)
                 meta.height, meta.width = int(rgb.shape[0]), int(rgb.shape[1])
                 meta.origin.position.x, meta.origin.position.y = float(origin[0]), float(origin[1])
                 meta.origin.orientation.w = 1.0
-            stamp = self.last_stamp_ns
+        except WorkerDied as e:
+            if not self.worker_error:
+                self.worker_error = self.last_error = f"texture node: {e}; no more pairs are textured"
+                self.get_logger().error(self.worker_error)
+            return None
         meta.map_load_time = convert.ns_to_stamp(stamp)
         return rgb, cov, meta
 
@@ -685,6 +726,7 @@ class TextureNode(Node):
             self._cond.notify_all()
         if self._worker.is_alive():
             self._worker.join(timeout=10.0)
+        self._backend.close()
         super().destroy_node()
 
 
