@@ -476,7 +476,7 @@ def _bench(args) -> tuple[str | None, str, str]:
         table = car.main(
             args.out,
             tuple(args.seeds),
-            args.duration,
+            args.duration or 300.0,
             args.processes,
             args.particles,
             tuple(args.filter_seeds),
