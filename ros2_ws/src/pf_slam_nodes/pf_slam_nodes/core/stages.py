@@ -478,7 +478,7 @@ class MappingStage:
         pose = np.asarray(pose, dtype=np.float64).reshape(3)
         if self.grid is None:
             self.grid = LogOddsGrid(self.grid_cfg, center_xy=pose[:2])
-            self._occ = self.grid.occupancy()
+            self._occ = np.full(self.grid.log_odds.shape, -1, dtype=np.int8)  # = occupancy() of an empty grid
         g = self.grid
         ranges, angles, offset = scan_in_base(
             ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset, range_min, range_max, extrinsic
