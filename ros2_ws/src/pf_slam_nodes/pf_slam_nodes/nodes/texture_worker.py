@@ -185,9 +185,7 @@ class ProcessBackend:
                         break
                     if self.process.sentinel in ready:
                         raise self._died()
-            except (EOFError, BrokenPipeError, ConnectionResetError, OSError) as e:
-                if isinstance(e, WorkerDied):
-                    raise
+            except (EOFError, OSError):  # the pipe broke under the worker (WorkerDied passes through)
                 raise self._died() from None
         if not ok:
             raise RuntimeError(out)

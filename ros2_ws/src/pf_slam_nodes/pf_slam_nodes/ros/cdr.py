@@ -189,10 +189,7 @@ def pose_stamped_xy_yaw(raw: bytes) -> tuple[int, np.ndarray]:
     """geometry_msgs/PoseStamped bytes -> (stamp ns, ``[x, y, yaw]``)."""
     r = CdrReader(raw, "geometry_msgs/PoseStamped")
     stamp = r.header()
-    r._align(8)
-    r._need(56)
-    x, y, _z, qx, qy, qz, qw = struct.unpack_from(r.end + "7d", raw, r.pos)
-    return stamp, np.array([x, y, float(quat_to_yaw(qx, qy, qz, qw))])
+    return stamp, _pose_xy_yaw(r, raw)
 
 
 def odometry_xy_yaw(raw: bytes) -> tuple[int, np.ndarray]:
@@ -202,10 +199,15 @@ def odometry_xy_yaw(raw: bytes) -> tuple[int, np.ndarray]:
     r = CdrReader(raw, "nav_msgs/Odometry")
     stamp = r.header()
     r.skip_string()  # child_frame_id
+    return stamp, _pose_xy_yaw(r, raw)
+
+
+def _pose_xy_yaw(r: CdrReader, raw: bytes) -> np.ndarray:
+    """``[x, y, yaw]`` of the geometry_msgs/Pose at the reader's position."""
     r._align(8)
     r._need(56)
     x, y, _z, qx, qy, qz, qw = struct.unpack_from(r.end + "7d", raw, r.pos)
-    return stamp, np.array([x, y, float(quat_to_yaw(qx, qy, qz, qw))])
+    return np.array([x, y, float(quat_to_yaw(qx, qy, qz, qw))])
 
 
 def clock_bytes(stamp_ns: int) -> bytes:
