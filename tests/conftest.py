@@ -71,6 +71,19 @@ def spin_until(executor, predicate: Callable[[], bool], timeout_s: float, step_s
     return True
 
 
+def box_ranges(pose, angles, x_walls: tuple[float, float], y_walls: tuple[float, float]):
+    """Ranges from ``pose`` ``[x, y, theta]`` along the beam ``angles`` (robot frame) to the
+    walls of an axis-aligned box ``x_walls[0] <= x <= x_walls[1]``, ``y_walls[0] <= y <= y_walls[1]``."""
+    import numpy as np
+
+    th = pose[2] + angles
+    c, s = np.cos(th), np.sin(th)
+    with np.errstate(divide="ignore"):
+        tx = np.where(c > 0, (x_walls[1] - pose[0]) / c, (x_walls[0] - pose[0]) / c)
+        ty = np.where(s > 0, (y_walls[1] - pose[1]) / s, (y_walls[0] - pose[1]) / s)
+    return np.minimum(np.abs(tx), np.abs(ty))
+
+
 def config_section(cls, params: dict, prefix: str):
     """The config `cls` from a node's flat parameters (`prefix.field`), as declare_config builds it
     (for the ROS-free loop next to the graph in the tests)."""

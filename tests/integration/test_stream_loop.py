@@ -89,6 +89,20 @@ def _stream_loop(bag: Path, params_file: Path) -> tuple[ParticleFilterSlam, list
     return slam, slam.end_of_stream()
 
 
+def _graph_run(bag: Path, params: Path, out: Path, domain_id: int, **kwargs):
+    """`pf-slam run` of the bag with the parameter file, quiet, nothing recorded."""
+    return graph.run(
+        str(bag),
+        out,
+        params_file=str(params),
+        progress=False,
+        domain_id=domain_id,
+        snapshot_every=0,
+        record=False,
+        **kwargs,
+    )
+
+
 def _assert_same(stream: list, res) -> None:
     stamps = np.array([s for s, _ in stream])
     poses = np.array([p for _, p in stream])
@@ -104,16 +118,7 @@ def _assert_same(stream: list, res) -> None:
 def test_car_encoders_fog_stream_loop_equals_graph(tmp_path, ros_domain):
     bag, params = ROOT / "bags" / "car_sample", CONFIG / "kaist.yaml"
     slam, stream = _stream_loop(bag, params)
-    res = graph.run(
-        str(bag),
-        tmp_path / "car",
-        params_file=str(params),
-        progress=False,
-        domain_id=ros_domain,
-        texture=False,
-        snapshot_every=0,
-        record=False,
-    )
+    res = _graph_run(bag, params, tmp_path / "car", ros_domain, texture=False)
     assert len(stream) == 2000
     _assert_same(stream, res)
     # the same decisions: corrections, faults, the gyro's rest calibration
@@ -127,15 +132,7 @@ def test_car_encoders_fog_stream_loop_equals_graph(tmp_path, ros_domain):
 def test_sample_odometry_stream_loop_equals_graph(tmp_path, ros_domain):
     bag, params = ROOT / "bags" / "sample_indoor", CONFIG / "sim_indoor.yaml"
     slam, stream = _stream_loop(bag, params)
-    res = graph.run(
-        str(bag),
-        tmp_path / "sample",
-        params_file=str(params),
-        progress=False,
-        domain_id=ros_domain,
-        snapshot_every=0,
-        record=False,
-    )
+    res = _graph_run(bag, params, tmp_path / "sample", ros_domain)
     assert len(stream) == 600
     _assert_same(stream, res)
     assert not any(slam.scheduler.faults().values())
@@ -153,14 +150,5 @@ def test_car_odometry_scale_estimate_stream_loop_equals_graph(tmp_path, ros_doma
     slam, stream = _stream_loop(bag, params)
     est = slam.corrector.odom_scale
     assert est is not None and est.steps > 10 and est.scale != 1.0  # measured and applied
-    res = graph.run(
-        str(bag),
-        tmp_path / "car",
-        params_file=str(params),
-        progress=False,
-        domain_id=ros_domain,
-        texture=False,
-        snapshot_every=0,
-        record=False,
-    )
+    res = _graph_run(bag, params, tmp_path / "car", ros_domain, texture=False)
     _assert_same(stream, res)

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import box_ranges
 
 from pf_slam_nodes.core import config as cfg
 from pf_slam_nodes.core.odometry import OdomScaleEstimator
@@ -78,12 +79,7 @@ def test_scaled_increment_moves_along_the_particles_increment():
 def _room_scan(pose, n=360):
     """Ranges from ``pose`` in a 12 m x 6 m room (walls on cell centres of the 0.1 m grid)."""
     ang = np.linspace(-np.pi, np.pi, n, endpoint=False)
-    th = pose[2] + ang
-    c, s = np.cos(th), np.sin(th)
-    with np.errstate(divide="ignore"):
-        tx = np.where(c > 0, (6.05 - pose[0]) / c, (-5.95 - pose[0]) / c)
-        ty = np.where(s > 0, (3.05 - pose[1]) / s, (-2.95 - pose[1]) / s)
-    return np.minimum(np.abs(tx), np.abs(ty)), ang
+    return box_ranges(pose, ang, (-5.95, 6.05), (-2.95, 3.05)), ang
 
 
 def test_correction_stage_learns_the_scale_of_odometry_that_under_reports():

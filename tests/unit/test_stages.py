@@ -1,6 +1,7 @@
 """Stages as the graph runs them: map patches keep the correlator's field equal to a full rebuild."""
 
 import numpy as np
+from conftest import box_ranges
 
 from pf_slam_nodes.core import config as cfg
 from pf_slam_nodes.core.correlation import GridLikelihoodField
@@ -10,12 +11,7 @@ from pf_slam_nodes.core.stages import CorrectionStage, MappingStage, PredictionS
 def _box_scan(pose, n=181, fov=np.pi):
     """Ranges from `pose` inside a ~6 m x 4 m box; walls on cell centres of the 0.05 m grid."""
     ang = np.linspace(-fov / 2, fov / 2, n)
-    th = pose[2] + ang
-    c, s = np.cos(th), np.sin(th)
-    with np.errstate(divide="ignore"):
-        tx = np.where(c > 0, (3.025 - pose[0]) / c, (-2.975 - pose[0]) / c)
-        ty = np.where(s > 0, (2.025 - pose[1]) / s, (-1.975 - pose[1]) / s)
-    return np.minimum(np.abs(tx), np.abs(ty)), ang
+    return box_ranges(pose, ang, (-2.975, 3.025), (-1.975, 2.025)), ang
 
 
 def test_patches_reproduce_the_mappers_obstacles():
