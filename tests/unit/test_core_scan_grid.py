@@ -69,6 +69,19 @@ def test_diagonal_ray_and_no_return():
     assert np.count_nonzero(g2.log_odds) == 4 and g2.log_odds.max() == 0
 
 
+def test_no_return_clears_only_up_to_the_sensor_range():
+    """A beam without return saw free space up to the scan's range_max, not up to the grid's
+    (longer) usable range: a wall beyond the sensor's reach must survive such beams."""
+    g = small_grid(range_max_usable_m=20.0)
+    g.integrate_scan(np.array([0.5, 0.5, 0.0]), np.array([7.0]), np.array([0.0]))  # wall in col 7
+    for _ in range(5):
+        g.integrate_scan(np.array([0.5, 0.5, 0.0]), np.array([np.inf]), np.array([0.0]), range_max_m=4.0)
+    lo = g.log_odds
+    assert lo[0, 7] == np.float32(L4)  # the wall: untouched by the 4 m no-return beams
+    assert np.all(lo[0, :5] < -L4)  # within 4 m: cleared by every beam
+    assert np.all(lo[0, 5:7] == np.float32(-L4))  # beyond 4 m: by the beam with the return only
+
+
 def test_hit_wins_over_free_in_same_scan_and_clipping():
     g = small_grid(clip_max=2.0, clip_min=-3.0)
     pose = np.array([0.5, 5.5, 0.0])
@@ -127,3 +140,33 @@ def test_occupied_mask_matches_occupancy_and_from_occupancy():
     np.testing.assert_array_equal(g.occupied_mask(65), occ >= 65)
     m = from_occupancy(occ, 1.0, (0.0, 0.0, 0.0))
     assert (m.width, m.height) == (10, 10) and m.data.dtype == np.int8
+
+
+def test_sparse_scan_range_raises_the_cut_only_for_scans_with_few_near_returns():
+    from pf_slam_nodes.core.scan import sparse_scan_range
+
+    near = np.array([3.0, 5.0, 8.0, np.inf, 12.0, 30.0, 40.0, np.nan])
+    assert sparse_scan_range(near, 20.0, 80.0, 0.25) == 20.0  # 4 of 8 within 20 m
+    assert sparse_scan_range(near, 20.0, 80.0, 0.0) == 20.0  # off
+    far = np.array([3.0, np.inf, 55.0, 30.0, 90.0, 45.0, np.inf, np.inf])
+    assert sparse_scan_range(far, 20.0, 80.0, 0.25) == 30.0  # the 2nd nearest of 8 (a quarter)
+    assert sparse_scan_range(far, 20.0, 80.0, 0.5) == 55.0  # 4 returns wanted, 90 m is no return
+    assert sparse_scan_range(np.array([np.inf, 50.0, np.inf, np.inf]), 20.0, 80.0, 0.75) == 50.0  # all returns
+    assert sparse_scan_range(np.full(4, np.inf), 20.0, 80.0, 0.25) == 20.0
+
+
+def test_mapping_stage_maps_the_far_returns_of_a_sparse_scan():
+    """A scan whose returns are all beyond range_max_usable_m maps its nearest quarter as hits
+    with grid.min_return_fraction, and none without."""
+    from pf_slam_nodes.core.config import FilterConfig
+    from pf_slam_nodes.core.stages import MappingStage
+
+    ranges = np.array([25.0, 26.0, 27.0, 28.0, np.inf, np.inf, np.inf, np.inf])
+    angles = np.linspace(-0.2, 0.2, 8)
+    hits = {}
+    for frac in (0.0, 0.25):
+        cfg = GridConfig(resolution_m=0.5, size_x_m=80.0, size_y_m=80.0, min_return_fraction=frac)
+        m = MappingStage(FilterConfig(), cfg)
+        m.integrate(np.zeros(3), ranges, angles, 0.1, 30.0)
+        hits[frac] = int(np.count_nonzero(m.grid.log_odds > 0))
+    assert hits[0.0] == 0 and hits[0.25] == 2

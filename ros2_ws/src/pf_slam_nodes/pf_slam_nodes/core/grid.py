@@ -284,7 +284,8 @@ class LogOddsGrid:
         range_min_m, range_max_m : float
             Sensor limits (the scan's ``range_min`` / ``range_max``): beams outside them, NaN
             or ``-inf`` are ignored (REP 117: not a measurement, neither a hit nor free space);
-            ``+inf`` is "no return" (free space up to ``range_max_usable_m``).
+            ``+inf`` is "no return" (free space up to ``range_max_usable_m`` or ``range_max_m``,
+            the shorter).
 
         Returns
         -------
@@ -297,13 +298,22 @@ class LogOddsGrid:
         return self._beams(pose, r, a, range_min_m, range_max_m, flat=True)
 
     def _beams(
-        self, pose: np.ndarray, r: np.ndarray, a: np.ndarray, range_min_m: float, range_max_m: float, flat: bool
+        self,
+        pose: np.ndarray,
+        r: np.ndarray,
+        a: np.ndarray,
+        range_min_m: float,
+        range_max_m: float,
+        flat: bool,
+        usable_m: float | None = None,
     ):
-        usable = float(self.cfg.range_max_usable_m)
+        usable = float(self.cfg.range_max_usable_m if usable_m is None else usable_m)
         with np.errstate(invalid="ignore"):
             valid = ~np.isnan(r) & (r >= range_min_m) & (r > 0.0) & ((r <= range_max_m) | (r == np.inf))
             is_hit = valid & np.isfinite(r) & (r <= usable)
-        r = np.where(is_hit, r, usable)[valid]
+        # a beam without return saw nothing up to the sensor's range_max, nothing beyond it
+        free_len = np.where(np.isinf(r), min(usable, range_max_m), usable)
+        r = np.where(is_hit, r, free_len)[valid]
         a = a[valid]
         is_hit = is_hit[valid]
         cells = self._trace_cells(pose, r, a, is_hit)
@@ -392,17 +402,20 @@ class LogOddsGrid:
         sensor_offset: np.ndarray | None = None,
         range_min_m: float = 0.0,
         range_max_m: float = math.inf,
+        usable_m: float | None = None,
     ) -> None:
-        """Integrate one scan taken at ``pose`` (see :meth:`trace_scan` for the parameters).
+        """Integrate one scan taken at ``pose`` (see :meth:`trace_scan` for the parameters;
+        ``usable_m``: this scan's ``range_max_usable_m`` if not the configured one).
 
         Each cell is updated at most once per scan: traversed cells get ``log_odds_miss``, beam
         endpoint cells get ``log_odds_hit`` (a hit wins over a traversal by another beam); beams
-        without return (``+inf``) or longer than ``range_max_usable_m`` mark free space up to
-        ``range_max_usable_m`` and no hit; finite beams beyond ``range_max_m`` are ignored. Values are clipped to ``[clip_min, clip_max]``; cells
-        outside the grid are never written.
+        longer than ``range_max_usable_m`` mark free space up to ``range_max_usable_m`` and no
+        hit, beams without return (``+inf``) up to ``min(range_max_usable_m, range_max_m)``;
+        finite beams beyond ``range_max_m`` are ignored. Values are clipped to ``[clip_min,
+        clip_max]``; cells outside the grid are never written.
         """
         pose, r, a = _scan_arrays(pose, ranges, angles, sensor_offset)
-        fx, fy, hx, hy = self._beams(pose, r, a, range_min_m, range_max_m, flat=False)
+        fx, fy, hx, hy = self._beams(pose, r, a, range_min_m, range_max_m, False, usable_m)
         self.last_growth = None
         if fx.size or hx.size:
             xs = np.concatenate([fx, hx]) + self.offset[0]

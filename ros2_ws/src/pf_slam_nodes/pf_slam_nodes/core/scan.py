@@ -45,6 +45,34 @@ def valid_beams(ranges: np.ndarray, range_min: float, range_max: float) -> np.nd
         return np.isfinite(r) & (r >= range_min) & (r <= range_max)
 
 
+def sparse_scan_range(ranges: np.ndarray, cut_m: float, range_max: float, min_fraction: float) -> float:
+    """The range cut for one scan: ``cut_m``, raised (up to the sensor's ``range_max``) until at
+    least ``min_fraction`` of the scan's beams return within it (fewer returns in all: all of
+    them). Indoors a quarter of the beams always return within 20 m; in open outdoor spaces a
+    scan may return only a few beams that close, and the match then needs the far ones.
+
+    Parameters
+    ----------
+    ranges : numpy.ndarray
+        ``(B,)`` ranges (m); inf/NaN allowed (no return).
+    cut_m : float
+        The configured cut (m).
+    range_max : float
+        The sensor's maximum range (m): returns beyond it are not returns.
+    min_fraction : float
+        0 (or less): the cut is ``cut_m``.
+    """
+    r = np.asarray(ranges, dtype=np.float64)
+    if min_fraction <= 0.0 or r.size == 0:
+        return float(cut_m)
+    with np.errstate(invalid="ignore"):
+        ret = r[np.isfinite(r) & (r > 0.0) & (r <= range_max)]
+    k = min(int(math.ceil(min_fraction * r.size)), ret.size)
+    if k == 0 or np.count_nonzero(ret <= cut_m) >= k:
+        return float(cut_m)
+    return float(np.partition(ret, k - 1)[k - 1])
+
+
 def scan_to_points(
     ranges: np.ndarray,
     angles: np.ndarray,

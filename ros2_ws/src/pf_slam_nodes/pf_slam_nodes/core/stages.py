@@ -39,7 +39,7 @@ from .localization import Localizer, pending_from_config
 from .motion import sample_odometry_motion
 from .mount import mounted_scan
 from .odometry import OdomScaleEstimator
-from .scan import planar_scan, scan_to_points, transform_points
+from .scan import planar_scan, scan_to_points, sparse_scan_range, transform_points
 
 MOTION_STREAM = 1
 RESAMPLE_STREAM = 2
@@ -308,7 +308,8 @@ class CorrectionStage:
         ranges, angles, offset = scan_in_base(
             ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset, range_min, range_max, extrinsic
         )
-        pts = scan_to_points(ranges, angles, max(range_min, 1e-6), min(range_max, self.corr_cfg.range_max_m))
+        cut = sparse_scan_range(ranges, self.corr_cfg.range_max_m, range_max, self.grid_cfg.min_return_fraction)
+        pts = scan_to_points(ranges, angles, max(range_min, 1e-6), min(range_max, cut))
         if np.any(offset):
             pts = transform_points(pts, offset)
         initialising = self.localizer is not None and self.pending_init is not None
@@ -333,7 +334,7 @@ class CorrectionStage:
         if matched:
             if step is not None and self.seen_at is not None:
                 self._measure_scale(pts, particles, log_w, step, scale)
-            particles, scores = correlate(particles, pts, self.field, self.corr_cfg)
+            particles, scores = correlate(particles, pts, self.field, self.corr_cfg, cut)
             log_w = update_log_weights(log_w, scores, self.corr_cfg.temperature)
         self.clock.add("correlate", t0)
         t0 = time.perf_counter()
@@ -483,7 +484,8 @@ class MappingStage:
         ranges, angles, offset = scan_in_base(
             ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset, range_min, range_max, extrinsic
         )
-        g.integrate_scan(pose, ranges, angles, offset, range_min, range_max)
+        usable = sparse_scan_range(ranges, g.cfg.range_max_usable_m, range_max, g.cfg.min_return_fraction)
+        g.integrate_scan(pose, ranges, angles, offset, range_min, range_max, usable)
         if g.last_growth is not None:  # the grid grew by whole tiles: so does its occupancy
             self._occ = grow_array(self._occ, g.last_growth, -1)
         self.pose = pose.copy()
