@@ -503,8 +503,6 @@ def window_search(
         ``(M, 2)`` scan endpoints in the robot frame of the poses.
     field : LikelihoodField
     cfg : CorrelationConfig
-    range_max_m : float, optional
-        This scan's range cut, if not ``cfg.range_max_m`` (``grid.min_return_fraction``).
 
     Returns
     -------
