@@ -61,3 +61,28 @@ def test_correction_recovers_pose_offset_and_keeps_n():
     res = corr.correct(guess, np.full(10, -np.log(10)), ranges, ang)
     assert res.matched and res.particles.shape == (10, 3)
     np.testing.assert_allclose(res.pose, true, atol=0.02)
+
+
+def test_a_sparse_scan_is_matched_on_its_far_returns():
+    """In a 50 m x 50 m hall every return lies beyond the 20 m cut: without
+    grid.min_return_fraction the scan has nothing to match and the offset stays; with it the scan
+    maps and matches its nearest quarter and the correction recovers the pose."""
+    true = np.array([0.3, -0.2, 0.05])
+    ang = np.linspace(-np.pi, np.pi, 1440, endpoint=False)  # 0.1 m apart on the walls
+    # walls on cell centres of the grid (centred on the first pose); the nearest quarter: all four
+    ranges = box_ranges(true, ang, (-24.95, 24.95), (-24.95, 24.95))
+    assert ranges.min() > 20.0
+    err = {}
+    for frac in (0.0, 0.25):
+        f = cfg.FilterConfig(num_particles=10)
+        g = cfg.GridConfig(resolution_m=0.1, size_x_m=80, size_y_m=80, min_return_fraction=frac)
+        c = cfg.CorrelationConfig(step_xy_m=0.1)
+        mapper, corr = MappingStage(f, g), CorrectionStage(f, g, c, cfg.ResampleConfig())
+        first = corr.correct(np.tile(true, (10, 1)), np.full(10, -np.log(10)), ranges, ang, 0.0, 80.0)
+        corr.apply_patch(mapper.integrate(first.pose, ranges, ang, 0.0, 80.0))
+        guess = np.tile(true + [0.12, -0.08, 0.005], (10, 1))  # 0.005 rad: 0.12 m at 25 m
+        res = corr.correct(guess, np.full(10, -np.log(10)), ranges, ang, 0.0, 80.0)
+        err[frac] = float(np.hypot(*(res.pose[:2] - true[:2])))
+        if frac == 0.0:
+            assert not res.matched and np.count_nonzero(mapper.grid.log_odds > 0) == 0
+    assert err[0.0] > 0.13 and err[0.25] < 0.03
