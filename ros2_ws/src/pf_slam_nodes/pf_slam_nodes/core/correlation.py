@@ -733,11 +733,7 @@ def _distances(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField, preci
 
 
 def correlate(
-    poses: np.ndarray,
-    points_sensor: np.ndarray,
-    field: LikelihoodField,
-    cfg: CorrelationConfig,
-    range_max_m: float | None = None,
+    poses: np.ndarray, points_sensor: np.ndarray, field: LikelihoodField, cfg: CorrelationConfig
 ) -> tuple[np.ndarray, np.ndarray]:
     """Best pose and score of every particle in its search window.
 
@@ -754,8 +750,6 @@ def correlate(
         offset, transform the points with ``scan.transform_points(points, sensor_offset)`` first).
     field : LikelihoodField
     cfg : CorrelationConfig
-    range_max_m : float, optional
-        This scan's range cut, if not ``cfg.range_max_m`` (``grid.min_return_fraction``).
 
     Returns
     -------
@@ -767,7 +761,7 @@ def correlate(
     """
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
     pts = np.asarray(points_sensor, dtype=np.float64).reshape(-1, 2)
-    pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= (cfg.range_max_m if range_max_m is None else range_max_m)]
+    pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= cfg.range_max_m]
     if pts.shape[0] == 0:
         return poses.copy(), np.zeros(poses.shape[0])
     search_pts = pts[:: cfg.beam_stride]

@@ -334,7 +334,10 @@ class CorrectionStage:
         if matched:
             if step is not None and self.seen_at is not None:
                 self._measure_scale(pts, particles, log_w, step, scale)
-            particles, scores = correlate(particles, pts, self.field, self.corr_cfg, cut)
+            corr_cfg = self.corr_cfg  # a sparse scan (grid.min_return_fraction): its own, longer cut
+            if cut != corr_cfg.range_max_m:
+                corr_cfg = dataclasses.replace(corr_cfg, range_max_m=cut)
+            particles, scores = correlate(particles, pts, self.field, corr_cfg)
             log_w = update_log_weights(log_w, scores, self.corr_cfg.temperature)
         self.clock.add("correlate", t0)
         t0 = time.perf_counter()
