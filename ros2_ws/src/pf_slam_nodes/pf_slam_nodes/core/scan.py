@@ -65,8 +65,7 @@ def sparse_scan_range(ranges: np.ndarray, cut_m: float, range_max: float, min_fr
     r = np.asarray(ranges, dtype=np.float64)
     if min_fraction <= 0.0 or r.size == 0:
         return float(cut_m)
-    with np.errstate(invalid="ignore"):
-        ret = r[np.isfinite(r) & (r > 0.0) & (r <= range_max)]
+    ret = r[valid_beams(r, 0.0, range_max) & (r > 0.0)]
     k = min(int(math.ceil(min_fraction * r.size)), ret.size)
     if k == 0 or np.count_nonzero(ret <= cut_m) >= k:
         return float(cut_m)
