@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+
 from pf_slam_tools.bench import results
 
 
@@ -50,3 +52,19 @@ def test_provenance_names_a_machine_and_a_commit():
     assert "cores" in results.machine()
     rev = results.commit()
     assert rev == "unknown" or len(rev.split()[0]) == 12
+
+
+def test_commit_says_when_tracked_files_differ_from_head(tmp_path):
+    def git(*a):
+        subprocess.run(["git", *a], cwd=tmp_path, check=True, capture_output=True)
+
+    git("init", "-q")
+    (tmp_path / "f.txt").write_text("a\n")
+    git("add", "f.txt")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-q", "-m", "one")
+    clean = results.commit(tmp_path)
+    assert len(clean) == 12 and "uncommitted" not in clean
+    (tmp_path / "new.txt").write_text("untracked files do not count\n")
+    assert results.commit(tmp_path) == clean
+    (tmp_path / "f.txt").write_text("b\n")
+    assert results.commit(tmp_path) == clean + " + uncommitted changes"

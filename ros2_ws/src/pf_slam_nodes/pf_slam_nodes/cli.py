@@ -441,12 +441,15 @@ def _dispatch(args: argparse.Namespace) -> int:
             print(table)
         return 0
     if args.command == "bench":
+        rev = None
+        if args.results:  # the checkout as the bench starts: its own plots and edits made while it
+            from pf_slam_tools.bench import results  # runs must not mark the code it measured as dirty
+
+            rev = results.commit()
         name, title, table = _bench(args)
         print(table)
         if args.results and name:
-            from pf_slam_tools.bench import results
-
-            results.update(args.results, name, results.section(name, title, table))
+            results.update(args.results, name, results.section(name, title, table, rev=rev))
         return 0
     raise AssertionError(args.command)
 
