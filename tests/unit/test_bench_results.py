@@ -68,3 +68,8 @@ def test_commit_says_when_tracked_files_differ_from_head(tmp_path):
     assert results.commit(tmp_path) == clean
     (tmp_path / "f.txt").write_text("b\n")
     assert results.commit(tmp_path) == clean + " + uncommitted changes"
+    # a bench's own outputs (another bench's table written before it) are not changes to the code
+    assert results.commit(tmp_path, outputs=("f.txt",)) == clean
+    assert results.commit(tmp_path, outputs=("other.md", None)) == clean + " + uncommitted changes"
+    outside = tmp_path.parent / "results_elsewhere.md"  # a results file outside the checkout
+    assert results.commit(tmp_path, outputs=(str(outside), "f.txt")) == clean

@@ -445,7 +445,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         if args.results:  # the checkout as the bench starts: its own plots and edits made while it
             from pf_slam_tools.bench import results  # runs must not mark the code it measured as dirty
 
-            rev = results.commit()
+            rev = results.commit(outputs=(args.results, getattr(args, "plot_dir", None)))
         name, title, table = _bench(args)
         print(table)
         if args.results and name:

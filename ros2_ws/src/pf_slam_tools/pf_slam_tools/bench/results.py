@@ -36,15 +36,24 @@ def machine() -> str:
     return f"{cpu}, {os.cpu_count()} cores{mem}, {platform.system()} {platform.release()}"
 
 
-def commit(repo: Path | None = None) -> str:
-    """The checkout's commit ('abc1234' or 'abc1234 + uncommitted changes'), or 'unknown'."""
+def commit(repo: Path | None = None, outputs: tuple = ()) -> str:
+    """The checkout's commit ('abc1234' or 'abc1234 + uncommitted changes'), or 'unknown'.
+    Changes to ``outputs`` (the benches' own files: the results file, the plot folder) do not
+    count: a bench run after another in the same session finds the first one's table there."""
     cwd = str(repo or Path.cwd())
+    exclude = []
+    for o in outputs:  # only paths inside the checkout (git refuses a pathspec outside it)
+        if o:
+            try:
+                exclude.append(f":(exclude){(Path(cwd) / o).resolve().relative_to(Path(cwd).resolve())}")
+            except ValueError:
+                pass
     try:
         rev = subprocess.run(
             ["git", "rev-parse", "--short=12", "HEAD"], cwd=cwd, capture_output=True, text=True, timeout=10, check=True
         ).stdout.strip()
         dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
+            ["git", "status", "--porcelain", "--untracked-files=no", "--", ".", *exclude],
             cwd=cwd,
             capture_output=True,
             text=True,
