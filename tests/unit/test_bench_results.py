@@ -73,3 +73,7 @@ def test_commit_says_when_tracked_files_differ_from_head(tmp_path):
     assert results.commit(tmp_path, outputs=("other.md", None)) == clean + " + uncommitted changes"
     outside = tmp_path.parent / "results_elsewhere.md"  # a results file outside the checkout
     assert results.commit(tmp_path, outputs=(str(outside), "f.txt")) == clean
+    # run from a subfolder: the whole checkout still counts, outputs relative to that folder
+    (tmp_path / "sub").mkdir()
+    assert results.commit(tmp_path / "sub") == clean + " + uncommitted changes"
+    assert results.commit(tmp_path / "sub", outputs=("../f.txt",)) == clean

@@ -442,9 +442,11 @@ def _dispatch(args: argparse.Namespace) -> int:
         return 0
     if args.command == "bench":
         rev = None
-        if args.results:  # the checkout as the bench starts: its own plots and edits made while it
-            from pf_slam_tools.bench import results  # runs must not mark the code it measured as dirty
+        if args.results:
+            from pf_slam_tools.bench import results
 
+            # the checkout as the bench starts: its own outputs (plots, an earlier bench's table)
+            # and edits made while it runs do not mark the code it measured as dirty
             rev = results.commit(outputs=(args.results, getattr(args, "plot_dir", None)))
         name, title, table = _bench(args)
         print(table)

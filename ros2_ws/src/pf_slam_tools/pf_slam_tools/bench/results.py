@@ -38,28 +38,24 @@ def machine() -> str:
 
 def commit(repo: Path | None = None, outputs: tuple = ()) -> str:
     """The checkout's commit ('abc1234' or 'abc1234 + uncommitted changes'), or 'unknown'.
-    Changes to ``outputs`` (the benches' own files: the results file, the plot folder) do not
-    count: a bench run after another in the same session finds the first one's table there."""
-    cwd = str(repo or Path.cwd())
-    exclude = []
-    for o in outputs:  # only paths inside the checkout (git refuses a pathspec outside it)
-        if o:
-            try:
-                exclude.append(f":(exclude){(Path(cwd) / o).resolve().relative_to(Path(cwd).resolve())}")
+    Changes to ``outputs`` (the benches' own files: the results file, the plot folder; paths
+    relative to ``repo``) do not count: a bench run after another in the same session finds the
+    first one's table there. The whole checkout is checked, wherever ``repo`` lies in it."""
+    cwd = Path(repo or Path.cwd())
+
+    def git(*args: str) -> str:
+        return subprocess.run(["git", *args], cwd=cwd, capture_output=True, text=True, timeout=10, check=True).stdout
+
+    try:
+        rev = git("rev-parse", "--short=12", "HEAD").strip()
+        top = git("rev-parse", "--show-toplevel").strip()
+        exclude = []
+        for o in filter(None, outputs):
+            try:  # git refuses a pathspec outside the checkout
+                exclude.append(f":(top,exclude){(cwd / o).resolve().relative_to(Path(top).resolve())}")
             except ValueError:
                 pass
-    try:
-        rev = subprocess.run(
-            ["git", "rev-parse", "--short=12", "HEAD"], cwd=cwd, capture_output=True, text=True, timeout=10, check=True
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no", "--", ".", *exclude],
-            cwd=cwd,
-            capture_output=True,
-            text=True,
-            timeout=10,
-            check=True,
-        ).stdout.strip()
+        dirty = git("status", "--porcelain", "--untracked-files=no", "--", ":/", *exclude).strip()
     except (OSError, subprocess.SubprocessError):
         return "unknown"
     return rev + (" + uncommitted changes" if dirty else "")
