@@ -232,6 +232,14 @@ class GridConfig(_ConfigBase):
         neighbours' ends) leaves the last ``floor(1/sin(a)) - 1`` cells before its end unchanged,
         at most this length (m): walls and pillars grazed by later rays stay in the map. 0: every
         beam clears up to its end cell (the seeds' behaviour).
+    surface_fill_m : float
+        The segment between two neighbouring beams' ends is marked as hit cells too when it is
+        at most this long (m) and both ends lie on one smooth surface (each end collinear with
+        its other neighbour within 5 degrees: no range jump at an edge, no clutter). A scan then
+        maps its walls as lines, not as the dots its beams happen to hit, so the next scan's
+        points no longer score best where they repeat the last scan's dots (a pull back towards
+        the previous pose, which makes the matches lag along corridors). 0 (default): hits at
+        the beams' ends only. The indoor profile's 1.0: docs/architecture.md, "Walls as lines".
     max_cells : int
         Bound on the grown grid (cells, rows x columns; the mapper's grid and the correlator's
         likelihood field take ~19 bytes per cell together). A scan reaching beyond what this
@@ -252,6 +260,7 @@ class GridConfig(_ConfigBase):
     min_return_fraction: float = 0.0
     max_cells: int = 100_000_000
     graze_margin_m: float = 0.0
+    surface_fill_m: float = 0.0
 
     def __post_init__(self) -> None:
         _check_pos("resolution_m", self.resolution_m)
@@ -282,6 +291,7 @@ class GridConfig(_ConfigBase):
         if not 0.0 <= self.min_return_fraction <= 1.0:
             raise ValueError(f"min_return_fraction must be in [0, 1], got {self.min_return_fraction!r}")
         _check_nonneg("graze_margin_m", self.graze_margin_m)
+        _check_nonneg("surface_fill_m", self.surface_fill_m)
         if self.size_x_m / self.resolution_m > 50000 or self.size_y_m / self.resolution_m > 50000:
             raise ValueError(
                 f"size_x_m/size_y_m too large for resolution_m={self.resolution_m!r}: "

@@ -349,7 +349,37 @@ class LogOddsGrid:
         fy = np.floor(sy + t * (ey[beam] - sy)).astype(np.int64)
         hx = np.floor(ex[is_hit]).astype(np.int64)
         hy = np.floor(ey[is_hit]).astype(np.int64)
+        if self.cfg.surface_fill_m > 0 and is_hit.sum() >= 4:
+            lx, ly = self._surface_cells(ex, ey, is_hit)
+            hx, hy = np.concatenate([hx, lx]), np.concatenate([hy, ly])
         return fx, fy, hx, hy
+
+    def _surface_cells(self, ex: np.ndarray, ey: np.ndarray, is_hit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Cells ``[col, row]`` on the segments between neighbouring beams' ends that lie on one
+        smooth surface (``grid.surface_fill_m``): both beams hit, they are neighbours in the scan,
+        the segment is at most ``surface_fill_m`` long and each end is collinear with its other
+        neighbour (:func:`_on_line`), so an edge's range jump or clutter is never bridged. The
+        segment is sampled every half cell; its end cells are the beams' own hit cells."""
+        h = np.flatnonzero(is_hit)
+        px, py = ex[h], ey[h]
+        line = _on_line(px, py)[0]
+        tx, ty = np.diff(px), np.diff(py)
+        length = np.hypot(tx, ty)
+        seg = np.flatnonzero(
+            line[:-1]
+            & line[1:]
+            & (np.diff(h) == 1)
+            & (length > 1.0)
+            & (length <= self.cfg.surface_fill_m / self.resolution)
+        )
+        if not seg.size:
+            empty = np.zeros(0, dtype=np.int64)
+            return empty, empty
+        n = np.ceil(2.0 * length[seg]).astype(np.int64)
+        j = np.repeat(seg, n)
+        k = np.arange(int(n.sum()), dtype=np.int64) - np.repeat(np.cumsum(n) - n, n)
+        t = (k + 0.5) / np.repeat(n, n)
+        return np.floor(px[j] + t * tx[j]).astype(np.int64), np.floor(py[j] + t * ty[j]).astype(np.int64)
 
     def _graze_cells(self, ex: np.ndarray, ey: np.ndarray, sx: float, sy: float, is_hit: np.ndarray) -> np.ndarray:
         """Per beam, the cells before its end that its free trace leaves alone (``grid.graze_margin_m``).
@@ -372,15 +402,7 @@ class LogOddsGrid:
             with np.errstate(invalid="ignore", divide="ignore"):
                 return np.where(norm > 0, norm / np.maximum(cross, 1e-12), 1.0)
 
-        # the surface through the previous and the next hit's ends, where the three ends lie on one
-        # line (within 5 degrees): a smooth wall, not a range jump at an edge or clutter
-        tpx, tpy = np.zeros(h.size), np.zeros(h.size)
-        tnx, tny = np.zeros(h.size), np.zeros(h.size)
-        tpx[1:-1], tpy[1:-1] = px[1:-1] - px[:-2], py[1:-1] - py[:-2]
-        tnx[1:-1], tny[1:-1] = px[2:] - px[1:-1], py[2:] - py[1:-1]
-        dot = tpx * tnx + tpy * tny
-        crs = np.abs(tpx * tny - tpy * tnx)
-        line = (dot > 0) & (crs <= math.sin(math.radians(5.0)) * np.hypot(tpx, tpy) * np.hypot(tnx, tny))
+        line, tpx, tpy, tnx, tny = _on_line(px, py)
         inv_sin = np.where(line, inv_sin(tpx + tnx, tpy + tny), 1.0)
         cells = np.floor(np.minimum(inv_sin, self.cfg.graze_margin_m / self.resolution + 1.0)).astype(np.int64) - 1
         out = np.zeros(is_hit.size, dtype=np.int64)
@@ -511,6 +533,21 @@ class LogOddsGrid:
     def to_occupancy_map(self, bounds: Bounds | None = None) -> OccupancyMap:
         """The (cropped) grid as an :class:`OccupancyMap` (what a ROS subscriber would get)."""
         return OccupancyMap(self.occupancy(bounds), self.resolution, self.bounds_origin(bounds))
+
+
+def _on_line(px: np.ndarray, py: np.ndarray, max_deg: float = 5.0):
+    """Which beam ends (in scan order) lie on one line with their previous and next ends (within
+    ``max_deg``): a smooth surface, not a range jump at an edge or clutter. Returns ``(K,)`` bool
+    (the first and last ends: False) and the tangents to the previous and to the next end
+    ``tpx, tpy, tnx, tny`` (``(K,)``, zero at the first and last)."""
+    tpx, tpy = np.zeros(px.size), np.zeros(px.size)
+    tnx, tny = np.zeros(px.size), np.zeros(px.size)
+    tpx[1:-1], tpy[1:-1] = px[1:-1] - px[:-2], py[1:-1] - py[:-2]
+    tnx[1:-1], tny[1:-1] = px[2:] - px[1:-1], py[2:] - py[1:-1]
+    dot = tpx * tnx + tpy * tny
+    crs = np.abs(tpx * tny - tpy * tnx)
+    line = (dot > 0) & (crs <= math.sin(math.radians(max_deg)) * np.hypot(tpx, tpy) * np.hypot(tnx, tny))
+    return line, tpx, tpy, tnx, tny
 
 
 def _scan_arrays(pose, ranges, angles, sensor_offset) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
