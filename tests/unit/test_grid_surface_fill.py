@@ -33,9 +33,15 @@ def _corridor(pose, angles=ANGLES, length=40.0):
     return np.where((x <= length) & (r <= 20.0), r, np.inf)
 
 
-def _wall_cells(g, x0, x1, y):
-    xs = np.arange(x0, x1, 0.05) + 0.025
-    c = g.world_to_cell(np.stack([xs, np.full(xs.size, y)], axis=1))
+def _centres(a, b):
+    """The 0.05 m cells' centres from ``a`` to ``b`` along one axis."""
+    return np.arange(a, b, 0.05) + 0.025
+
+
+def _hits(g, x, y):
+    """Hit (log-odds > 0) at the points ``x, y`` (arrays or scalars, broadcast together)."""
+    x, y = np.broadcast_arrays(x, y)
+    c = g.world_to_cell(np.stack([x.ravel(), y.ravel()], axis=1))
     return g.log_odds[c[:, 1], c[:, 0]] > 0
 
 
@@ -45,11 +51,11 @@ def test_a_wall_is_mapped_as_a_line_between_the_beams_ends():
     for g in (dots, lines):
         g.integrate_scan(p, _corridor(p), ANGLES)
     # 1-6 m ahead the beams' ends lie 0.02-0.55 m apart along the wall
-    assert _wall_cells(dots, 1.0, 6.0, HALF_W).mean() < 0.45
-    assert _wall_cells(lines, 1.0, 6.0, HALF_W).mean() == 1.0
-    assert _wall_cells(lines, 1.0, 6.0, -HALF_W).mean() == 1.0
+    assert _hits(dots, _centres(1.0, 6.0), HALF_W).mean() < 0.45
+    assert _hits(lines, _centres(1.0, 6.0), HALF_W).mean() == 1.0
+    assert _hits(lines, _centres(1.0, 6.0), -HALF_W).mean() == 1.0
     # segments longer than surface_fill_m stay open: 12-20 m ahead the ends are > 1 m apart
-    assert _wall_cells(lines, 12.0, 20.0, HALF_W).mean() < 0.2
+    assert _hits(lines, _centres(12.0, 20.0), HALF_W).mean() < 0.2
 
 
 def test_an_edge_is_not_bridged():
@@ -62,22 +68,13 @@ def test_an_edge_is_not_bridged():
     lines, dots = _grid(1.0), _grid(0.0)
     for g in (lines, dots):
         g.integrate_scan(np.zeros(3), r, a)
-    assert _wall_cells_x(lines, 4.02, -0.3, 0.3).all() and not _wall_cells_x(dots, 4.02, -0.3, 0.3).all()
-    assert _wall_cells_x(lines, 6.02, 1.3, 3.2).all() and not _wall_cells_x(dots, 6.02, 1.3, 3.2).all()
+    face, wall = _centres(-0.3, 0.3), _centres(1.3, 3.2)
+    assert _hits(lines, 4.02, face).all() and not _hits(dots, 4.02, face).all()
+    assert _hits(lines, 6.02, wall).all() and not _hits(dots, 6.02, wall).all()
     # between the box's sides and the wall (x 4.1-5.9) no hit: the jumps are not bridged
-    occ = lines.log_odds > 0
-    xs = np.arange(4.1, 5.9, 0.05) + 0.025
+    ys = np.linspace(0.45, 1.0, 12)[:, None]
     for side in (-1.0, 1.0):
-        ys = np.linspace(0.45, 1.0, 12)
-        X, Y = np.meshgrid(xs, side * ys)
-        c = lines.world_to_cell(np.stack([X.ravel(), Y.ravel()], axis=1))
-        assert not occ[c[:, 1], c[:, 0]].any()
-
-
-def _wall_cells_x(g, x, y0, y1):
-    ys = np.arange(y0, y1, 0.05) + 0.025
-    c = g.world_to_cell(np.stack([np.full(ys.size, x), ys], axis=1))
-    return g.log_odds[c[:, 1], c[:, 0]] > 0
+        assert not _hits(lines, _centres(4.1, 5.9)[None, :], side * ys).any()
 
 
 def test_the_next_scan_no_longer_sticks_to_the_last_ones_dots():
