@@ -23,7 +23,7 @@ def test_stage_clocks_merge_per_step() -> None:
     b.clock.add("map", time.perf_counter())
     seconds, calls = stage_seconds(a, b)
     assert tuple(seconds) == STAGE_STEPS
-    assert calls == {"predict": 0, "correlate": 2, "resample": 0, "map": 1, "field": 0}
+    assert calls == {"predict": 0, "correlate": 2, "resample": 0, "map": 1, "field": 0, "loops": 0}
     assert 0.009 < seconds["correlate"] < 1.0 and seconds["predict"] == 0.0
 
 

@@ -25,6 +25,7 @@ from .config import (
     FilterConfig,
     GridConfig,
     LaserConfig,
+    LoopClosureConfig,
     OdometryMotionConfig,
     ResampleConfig,
     WheelsConfig,
@@ -64,11 +65,13 @@ class ParticleFilterSlam:
         corr_cfg: CorrelationConfig,
         resample_cfg: ResampleConfig,
         laser_cfg: LaserConfig | None = None,
+        loop_cfg: LoopClosureConfig | None = None,
     ) -> None:
         self.predictor = PredictionStage(filter_cfg, motion_cfg)
         self.corrector = CorrectionStage(filter_cfg, grid_cfg, corr_cfg, resample_cfg, laser_cfg)
-        self.mapper = MappingStage(filter_cfg, grid_cfg, laser_cfg)
+        self.mapper = MappingStage(filter_cfg, grid_cfg, laser_cfg, loop_cfg)
         self.num_updates = 0  # corrections after the first scan
+        self.scans_processed = 0  # process_odometry_scan: the scan's index is its key
         self._pose: np.ndarray | None = None
         self.scheduler: PredictorScheduler | None = None  # open_stream()
         self.stream_poses: list[tuple[int, np.ndarray]] = []  # (stamp ns, pose) per scan, in scan order
@@ -140,6 +143,8 @@ class ParticleFilterSlam:
             last corrected pose (+) odometry since then otherwise.
         """
         first = self._pose is None
+        key = float(self.scans_processed)
+        self.scans_processed += 1
         update, delta = self.predictor.predict(odom_pose)
         if not update:
             return compose(self._pose, delta)
@@ -153,11 +158,18 @@ class ParticleFilterSlam:
             odom_pose=odom_pose,
         )
         self.predictor.set_corrected(c.particles, c.log_weights)
-        patch = self.mapper.integrate(c.pose, ranges, angles, range_min, range_max)
+        patch = self.mapper.integrate(c.pose, ranges, angles, range_min, range_max, key=key)
         self.corrector.apply_patch(patch)
         self._pose = c.pose.copy()
         self.num_updates += 0 if first else 1
         return c.pose.copy()
+
+    def trajectory(self, keys: np.ndarray, poses: np.ndarray) -> np.ndarray:
+        """The run's poses (``poses`` ``(N, 3)`` as returned, at ``keys``: the scan indices of
+        :meth:`process_odometry_scan`, or the stamps in seconds of the stream) in the final frame
+        of the loop closure (the map re-rendered if needed); as they are without it."""
+        self.mapper.finish()
+        return self.mapper.corrected(keys, poses)
 
     # ------------------------------------------------------------------ input streams
     def open_stream(
@@ -210,7 +222,9 @@ class ParticleFilterSlam:
                     extrinsic=a.mount,
                     odom_pose=a.odom,
                 )
-                patch = self.mapper.integrate(c.pose, ranges, angles, range_min, range_max, extrinsic=a.mount)
+                patch = self.mapper.integrate(
+                    c.pose, ranges, angles, range_min, range_max, extrinsic=a.mount, key=a.stamp / 1e9
+                )
                 self.corrector.apply_patch(patch)
                 self._pose = c.pose.copy()
                 self.num_updates += 0 if first else 1

@@ -28,14 +28,16 @@ from .config import (
     GridConfig,
     LaserConfig,
     LocalizationConfig,
+    LoopClosureConfig,
     OdometryMotionConfig,
     ResampleConfig,
 )
 from .correlation import GridLikelihoodField, correlate, refine
 from .filter import n_eff, resample, update_log_weights
-from .geometry import relative_pose
+from .geometry import compose, relative_pose
 from .grid import LogOddsGrid, grid_geometry, grow_array, growth_plan
 from .localization import Localizer, pending_from_config
+from .loops import LoopCloser, scan_polygon
 from .motion import sample_odometry_motion
 from .mount import mounted_scan
 from .odometry import OdomScaleEstimator
@@ -51,12 +53,15 @@ class MapPatch:
     """The occupancy of a rectangle of the grid after an integration.
 
     ``occupancy``: int8 ``(h, w)`` (-1 unknown, 0..100), row = y; ``origin``: world ``(x, y)`` of
-    its cell (0, 0) corner (m); ``resolution`` (m).
+    its cell (0, 0) corner (m); ``resolution`` (m). ``transform``: a closed loop re-rendered the
+    map: the patch is the whole new grid, and the filter's frame moves by this ``(x, y, yaw)``
+    (the next correction's set is composed with it); None for an ordinary patch.
     """
 
     occupancy: np.ndarray
     resolution: float
     origin: np.ndarray
+    transform: np.ndarray | None = None
 
 
 class StageClock:
@@ -84,7 +89,7 @@ def stage_seconds(*stages) -> tuple[dict[str, float], dict[str, int]]:
 
 
 #: the steps the stages time, in pipeline order
-STAGE_STEPS = ("predict", "correlate", "resample", "map", "field")
+STAGE_STEPS = ("predict", "correlate", "resample", "map", "field", "loops")
 
 
 class PredictionStage:
@@ -193,6 +198,9 @@ class CorrectionStage:
         self._odom_prev: np.ndarray | None = None  # odometry pose of the last corrected set
         self.seen_at: np.ndarray | None = None  # (H, W) int32: correction that first observed a cell (odom_scale)
         self.scale_measurements = 0
+        self._move: np.ndarray | None = None  # a closed loop's frame change, for the next set
+        self._exact = False  # the next patch is a whole re-rendered grid: the field takes its geometry
+        self.frame_changes = 0
 
     def set_map(self, occupancy: np.ndarray, resolution: float, origin) -> None:
         """Localization: the fixed map (int8 ``(H, W)``, -1 / 0..100, row 0 = lowest y) becomes
@@ -229,21 +237,37 @@ class CorrectionStage:
             (None, None) if mean is None else (np.asarray(mean, float).reshape(3), np.asarray(cov, float).reshape(3, 3))
         )
 
+    def frame_change(self, transform: np.ndarray) -> None:
+        """A closed loop moved the map (the mapping stage's re-rendering, loops.*): the field is
+        dropped, the next patch (the whole new grid) becomes it, and the next set to correct is
+        composed with ``transform`` ``(x, y, yaw)`` into the new frame."""
+        self.field = self.known = self.seen_at = None
+        self._move = np.asarray(transform, dtype=np.float64).reshape(3).copy()
+        self._exact = True
+        self.frame_changes += 1
+
     def apply_patch(self, patch: MapPatch) -> int:
         """Bring the likelihood field up to date with a map patch; returns the cells changed.
 
         The field starts as the grid the mapping stage builds around the first corrected pose
         and grows by whole tiles to take in a patch beyond it (:func:`~.grid.growth_plan`, up to
-        ``grid.max_cells``); cells of a patch beyond that bound are ignored.
+        ``grid.max_cells``); cells of a patch beyond that bound are ignored. A patch with a
+        ``transform`` (a closed loop's re-rendered map) replaces the field (:meth:`frame_change`).
         """
         t0 = time.perf_counter()
+        if patch.transform is not None:
+            self.frame_change(patch.transform)
         changed = self._apply_patch(patch)
         self.clock.add("field", t0)
         return changed
 
     def _apply_patch(self, patch: MapPatch) -> int:
         if self.field is None:
-            h, w, origin = grid_geometry(self.grid_cfg, self.pose[:2])
+            if self._exact:  # a re-rendered map: the field is exactly its grid
+                (h, w), origin = np.asarray(patch.occupancy).shape, np.asarray(patch.origin, float)
+                self._exact = False
+            else:
+                h, w, origin = grid_geometry(self.grid_cfg, self.pose[:2])
             self.field = GridLikelihoodField(h, w, float(self.grid_cfg.resolution_m), origin, self.corr_cfg)
             if self.corr_cfg.skip_unknown:
                 self.known = np.zeros((h, w), dtype=bool)
@@ -304,6 +328,9 @@ class CorrectionStage:
         ``correlation.odom_scale``)."""
         t0 = t0_all = time.perf_counter()
         particles = np.asarray(particles, dtype=np.float64).reshape(-1, 3)
+        if self._move is not None:  # a closed loop moved the map: the set follows it
+            particles = compose(self._move, particles)
+            self._move = None
         log_w = np.asarray(log_weights, dtype=np.float64)
         ranges, angles, offset = scan_in_base(
             ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset, range_min, range_max, extrinsic
@@ -439,16 +466,38 @@ def pose_estimate(particles: np.ndarray, log_w: np.ndarray, cfg: FilterConfig) -
 
 
 class MappingStage:
-    """The log-odds grid: integrates scans at corrected poses, exports occupancy."""
+    """The log-odds grid: integrates scans at corrected poses, exports occupancy.
 
-    def __init__(self, filter_cfg: FilterConfig, grid_cfg: GridConfig, laser_cfg: LaserConfig | None = None) -> None:
+    With ``loops.enabled`` it also runs the loop closure (core/loops.py) on the scans it
+    integrates and keeps them: a closed loop that moves a keyframe by more than
+    ``loops.rebuild_m`` from where the map has its scan re-renders the map from the optimised
+    poses and returns it whole, with the frame change the filter's set must follow
+    (:attr:`MapPatch.transform`). The poses of the scans after it are in the new frame; the
+    frames are kept (:meth:`corrected`) so every pose of the run can be mapped into the final,
+    optimised frame.
+    """
+
+    def __init__(
+        self,
+        filter_cfg: FilterConfig,
+        grid_cfg: GridConfig,
+        laser_cfg: LaserConfig | None = None,
+        loop_cfg: LoopClosureConfig | None = None,
+    ) -> None:
         self.filter_cfg = filter_cfg
         self.grid_cfg = grid_cfg
         self.laser_cfg = laser_cfg or LaserConfig()
+        self.loop_cfg = loop_cfg or LoopClosureConfig()
         self.grid: LogOddsGrid | None = None
         self.pose: np.ndarray | None = None
         self._occ: np.ndarray | None = None  # int8 occupancy of the whole grid, kept current
-        self.clock = StageClock()  # "map": ray tracing + log-odds + the patch
+        self.clock = StageClock()  # "map": ray tracing + log-odds + the patch; "loops": the back end
+        self.loops = LoopCloser(self.loop_cfg) if self.loop_cfg.enabled else None
+        self._scans: list[tuple] = []  # loops: (key, raw pose, scan) of every integrated scan
+        self.frame = np.zeros(3)  # loops: the filter's frame in the raw frame
+        self.frames: list[tuple[float, np.ndarray]] = [(-math.inf, np.zeros(3))]  # (from key, frame)
+        self._pending_frame: np.ndarray | None = None  # takes effect at the next integrated scan
+        self.rebuilds = 0
 
     @property
     def ready(self) -> bool:
@@ -462,13 +511,79 @@ class MappingStage:
         range_min: float = 0.0,
         range_max: float = math.inf,
         extrinsic: np.ndarray | None = None,
+        key: float = 0.0,
     ) -> MapPatch:
         """Integrate a scan at a corrected pose; returns the patch of the cells it touched
-        (``extrinsic``: this scan's mount (12,) on a moving mount, else the configured one)."""
+        (``extrinsic``: this scan's mount (12,) on a moving mount, else the configured one;
+        ``key``: the scan's time, increasing, for the loop closure's corrections)."""
         t0 = time.perf_counter()
+        if self._pending_frame is not None:  # the set this pose came from followed the last re-rendering
+            self.frame, self._pending_frame = self._pending_frame, None
+            self.frames.append((float(key), self.frame.copy()))
         patch = self._integrate(pose, ranges, angles, range_min, range_max, extrinsic)
         self.clock.add("map", t0)
+        if self.loops is not None:
+            t0 = time.perf_counter()
+            patch = self._close_loops(float(key), pose, (ranges, angles, range_min, range_max, extrinsic), patch)
+            self.clock.add("loops", t0)
         return patch
+
+    def _close_loops(self, key: float, pose: np.ndarray, scan: tuple, patch: MapPatch) -> MapPatch:
+        raw = compose(self.frame, np.asarray(pose, dtype=np.float64).reshape(3))
+        angles = np.asarray(scan[1], dtype=np.float64)
+        if self._scans and np.array_equal(self._scans[-1][2][1], angles):
+            angles = self._scans[-1][2][1]  # shared: the beams are the same scan after scan
+        kept = (np.asarray(scan[0], dtype=np.float32).copy(), angles.copy() if angles is scan[1] else angles)
+        self._scans.append((key, raw, (*kept, *scan[2:])))
+        r, a, offset = scan_in_base(
+            scan[0], scan[1], self.laser_cfg, self.filter_cfg.sensor_offset, scan[2], scan[3], scan[4]
+        )
+        reach = min(self.loop_cfg.max_range_m, scan[3])
+        pts = transform_points(scan_to_points(r, a, max(scan[2], 1e-6), reach), offset)
+        ok = ~np.isnan(r)
+        ends = np.where(np.isfinite(r[ok]) & (r[ok] <= reach), r[ok], reach)
+        ends = transform_points(np.stack([ends * np.cos(a[ok]), ends * np.sin(a[ok])], axis=1), offset)
+        if not self.loops.add(key, raw, pts, scan_polygon(offset[:2], ends, max(1, ends.shape[0] // 180))):
+            return patch
+        if self.loops.map_shift() <= self.loop_cfg.rebuild_m:
+            return patch
+        corr = self.loops.mark_mapped()
+        move = compose(corr, self.frame)  # the filter's frame -> the optimised one
+        self._pending_frame = relative_pose(corr, np.zeros(3))  # optimised -> raw
+        self._render(self.loops.corrections(np.array([k for k, _, _ in self._scans])))
+        return MapPatch(self._occ.copy(), self.grid.resolution, self.grid.origin.copy(), move)
+
+    def _render(self, corrections: np.ndarray) -> None:
+        """The map anew from every kept scan at its raw pose moved by its correction."""
+        poses = compose(corrections, np.array([raw for _, raw, _ in self._scans]))
+        self.grid = self._occ = None
+        for pose, (_, _, scan) in zip(poses, self._scans):
+            self._integrate(pose, *scan)
+        self.pose = poses[-1].copy()
+        self.rebuilds += 1
+
+    def finish(self) -> bool:
+        """End of the run: the map re-rendered with the final corrections if any keyframe moved
+        by more than half a cell since it was built. True if it was."""
+        if self.loops is None or not self._scans or self.loops.map_shift() <= 0.5 * self.grid_cfg.resolution_m:
+            return False
+        t0 = time.perf_counter()
+        self.loops.mark_mapped()
+        self._render(self.loops.corrections(np.array([k for k, _, _ in self._scans])))
+        self.clock.add("loops", t0)
+        return True
+
+    def corrected(self, keys: np.ndarray, poses: np.ndarray) -> np.ndarray:
+        """Poses ``(N, 3)`` of the run at ``keys`` (the filter's, each in the frame it was in at
+        its time) in the final optimised frame; unchanged without loop closure."""
+        p = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+        if self.loops is None or not len(self.loops):
+            return p.copy()
+        k = np.asarray(keys, dtype=np.float64).reshape(-1)
+        starts = np.array([f for f, _ in self.frames])
+        frames = np.array([g for _, g in self.frames])
+        raw = compose(frames[np.searchsorted(starts, k, side="right") - 1], p)
+        return compose(self.loops.corrections(k), raw)
 
     def _integrate(
         self,

@@ -1,0 +1,350 @@
+"""Loop closure on top of the filter: keyframes, submap-to-submap loop matches, a pose graph.
+
+The filter matches every scan against the one map it builds, so its error is a random walk of
+small match errors that nothing pulls back once the robot returns to a place beyond its search
+window: the revisit is mapped beside the first visit, offset. :class:`LoopCloser` keeps a pose
+graph of keyframes (a corrected scan every ``keyframe_m`` of travel), chained by the filter's
+own relative poses, and adds a loop edge where a keyframe's recent surroundings (the scans of
+the last ``submap_m`` of travel, as one local map in its frame) match the surroundings of an
+earlier keyframe near it (the scans within ``submap_m`` of travel around that one). The graph
+is solved after every accepted loop (core/posegraph.py); any pose of the run then moves with
+the correction of the keyframes around it in time.
+
+A loop match must be exact and unique to be kept. It is searched exhaustively on a coarse
+field over a window that grows with the travel since the last closed loop, then its best
+candidates are refined on a fine field (Gauss-Newton). A query point scores +1 within
+``2 sigma`` of a reference point (an inlier), -1 in the free space the reference's scans saw
+(a contradiction: a wall where the earlier visit saw through), 0 where the reference saw
+nothing; the best candidate needs ``min_inliers``, at most ``max_contradictions``, and must beat
+every candidate ``ambiguity_m`` or more away by ``min_margin`` (a corridor of identical doors
+has several). The solution drops loop edges that disagree with the rest (``max_chi2``).
+
+Frames: the poses given to :meth:`LoopCloser.add` are the filter's in one fixed frame, the *raw*
+frame (the stages keep the filter's own frame changes out of it: core/stages.py). The
+corrections map raw poses into the optimised frame.
+
+ROS-free and file-free: arrays in, arrays out.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import cv2
+import numpy as np
+
+from .config import LoopClosureConfig
+from .geometry import compose, relative_pose, wrap_angle
+from .posegraph import optimize
+from .scan import transform_points, transform_points_batch
+
+
+@dataclasses.dataclass
+class LoopEdge:
+    ref: int  # keyframe matched against (the earlier place)
+    cur: int  # keyframe whose recent surroundings were matched
+    z: np.ndarray  # (3,) pose of cur in ref's frame
+    score: float
+    rival: float
+
+
+def _voxel(points: np.ndarray, size: float) -> np.ndarray:
+    """One point per ``size`` cell (the first in order)."""
+    if points.shape[0] == 0:
+        return points
+    keys = np.floor(points / size).astype(np.int64)
+    _, first = np.unique(keys[:, 0] * 2_000_003 + keys[:, 1], return_index=True)
+    return points[np.sort(first)]
+
+
+class _Field:
+    """A reference point set on a local grid: the distance to its nearest point, the match
+    table ``exp(-d^2 / 2 sigma^2)``, and the free space its scans saw (their polygons, farther
+    than ``3 sigma`` from any point)."""
+
+    def __init__(self, pts: np.ndarray, polys: list, res: float, sigma: float, margin: float) -> None:
+        self.res = res
+        self.origin = pts.min(axis=0) - margin
+        w, h = (np.ceil((pts.max(axis=0) + margin - self.origin) / res).astype(np.int64) + 1).tolist()
+        occ = np.full((h, w), 255, np.uint8)
+        c = np.floor((pts - self.origin) / res).astype(np.int64)
+        occ[c[:, 1], c[:, 0]] = 0
+        self.dist = cv2.distanceTransform(occ, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) * np.float32(res)
+        self.like = np.exp(-0.5 * (self.dist / np.float32(sigma)) ** 2)
+        seen = np.zeros((h, w), np.uint8)
+        cv2.fillPoly(seen, [np.floor((p - self.origin) / res).astype(np.int32) for p in polys], 1)
+        self.free = ((seen > 0) & (self.dist > np.float32(3 * sigma))).astype(np.float32)
+        self.h, self.w = h, w
+
+    def cells(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        ix = np.floor((xy[..., 0] - self.origin[0]) / self.res).astype(np.int64)
+        iy = np.floor((xy[..., 1] - self.origin[1]) / self.res).astype(np.int64)
+        return ix, iy
+
+    def lookup(self, table: np.ndarray, xy: np.ndarray, outside: float) -> np.ndarray:
+        """Nearest-cell values at world points ``(..., 2)``; ``outside`` beyond the grid."""
+        ix, iy = self.cells(xy)
+        ok = (ix >= 0) & (ix < self.w) & (iy >= 0) & (iy < self.h)
+        out = np.full(ix.shape, outside, np.float32)
+        out[ok] = table[iy[ok], ix[ok]]
+        return out
+
+    def bilinear(self, table: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``table`` (values at cell centres) interpolated at world points ``(..., 2)`` and its
+        gradient (per m); clamped to the grid's edge."""
+        u = np.clip((xy[..., 0] - self.origin[0]) / self.res - 0.5, 0.0, self.w - 1.001)
+        v = np.clip((xy[..., 1] - self.origin[1]) / self.res - 0.5, 0.0, self.h - 1.001)
+        u0, v0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
+        fu, fv = u - u0, v - v0
+        d00, d01 = table[v0, u0], table[v0, u0 + 1]
+        d10, d11 = table[v0 + 1, u0], table[v0 + 1, u0 + 1]
+        top, bot = d00 + fu * (d01 - d00), d10 + fu * (d11 - d10)
+        gx = ((1.0 - fv) * (d01 - d00) + fv * (d11 - d10)) / self.res
+        return top + fv * (bot - top), gx, (bot - top) / self.res
+
+
+def match_submaps(
+    query: np.ndarray, ref: np.ndarray, ref_polys: list, guess: np.ndarray, window_m: float, cfg: LoopClosureConfig
+) -> tuple[np.ndarray, float, float, float, float] | None:
+    """The pose of the query's frame in the reference's frame within ``window_m`` (and
+    ``cfg.window_rad``) of ``guess``: ``(pose (3,), score, inliers, contradictions, rival)``, or
+    None when either point set has fewer than 30 points. ``query``, ``ref``: ``(M, 2)`` points in
+    their own frames; ``ref_polys``: the reference scans' free-space polygons in its frame.
+    ``score`` = inliers - contradictions (shares of the query's points); ``rival``: the best
+    score of a candidate ``ambiguity_m`` or more away (-1 if none)."""
+    if query.shape[0] < 30 or ref.shape[0] < 30:
+        return None
+    coarse = _Field(ref, ref_polys, cfg.coarse_m, max(cfg.coarse_m, 2 * cfg.sigma_m), window_m + cfg.max_range_m)
+    fine = _Field(ref, ref_polys, cfg.resolution_m, cfg.sigma_m, 1.0)
+    q = (
+        query
+        if query.shape[0] <= cfg.max_points
+        else query[np.linspace(0, query.shape[0] - 1, cfg.max_points).astype(np.int64)]
+    )
+    # rotation steps that move the farthest point by about one coarse cell
+    dyaw = min(cfg.coarse_m / max(float(np.hypot(q[:, 0], q[:, 1]).max()), 1.0), cfg.window_rad)
+    ny = int(math.floor(cfg.window_rad / dyaw + 1e-9))
+    yaws = guess[2] + np.arange(-ny, ny + 1) * dyaw
+    k = int(math.floor(window_m / cfg.coarse_m + 1e-9))
+    sh = np.arange(-k, k + 1)
+    pad = k + 1
+    table = np.pad(coarse.like - coarse.free, pad)
+    wp = table.shape[1]
+    c, s = np.cos(yaws)[:, None], np.sin(yaws)[:, None]
+    rot = np.stack([guess[0] + c * q[:, 0] - s * q[:, 1], guess[1] + s * q[:, 0] + c * q[:, 1]], axis=-1)
+    ix, iy = coarse.cells(rot)  # (R, M)
+    base = np.clip(iy + pad, 0, table.shape[0] - 1) * wp + np.clip(ix + pad, 0, wp - 1)
+    offs = (sh[:, None] * wp + sh[None, :]).ravel()  # (dy, dx), dy-major
+    flat = table.ravel()
+    scores = np.stack([flat[b[None, :] + offs[:, None]].sum(axis=1) for b in base])  # (R, S)
+    best_r = scores.argmax(axis=0)
+    grid = scores.max(axis=0).reshape(sh.size, sh.size).astype(np.float32)
+    peaks = np.argwhere(grid >= cv2.dilate(grid, np.ones((3, 3), np.uint8)) - 1e-6)
+    order = np.argsort(-grid[peaks[:, 0], peaks[:, 1]], kind="stable")[: cfg.candidates]
+    cands = np.array(
+        [
+            [guess[0] + sh[b] * cfg.coarse_m, guess[1] + sh[a] * cfg.coarse_m, yaws[best_r[a * sh.size + b]]]
+            for a, b in peaks[order]
+        ]
+    )
+    poses, score, inl, con = _refine(cands, query, fine, cfg)
+    bi = int(np.argmax(score))
+    far = np.hypot(poses[:, 0] - poses[bi, 0], poses[:, 1] - poses[bi, 1]) >= cfg.ambiguity_m
+    rival = float(score[far].max()) if far.any() else -1.0
+    return poses[bi], float(score[bi]), float(inl[bi]), float(con[bi]), rival
+
+
+def _refine(poses: np.ndarray, pts: np.ndarray, field: _Field, cfg: LoopClosureConfig, iterations: int = 15):
+    """Gauss-Newton on the squared distance (clamped at ``3 sigma``) from every pose; the score,
+    inlier and contradiction shares at the results."""
+    x = poses.copy()
+    dist = np.minimum(field.dist, np.float32(3 * cfg.sigma_m))
+    for _ in range(iterations):
+        w = transform_points_batch(pts, x)  # (N, M, 2)
+        d, ddx, ddy = field.bilinear(dist, w)
+        rx, ry = w[..., 0] - x[:, 0:1], w[..., 1] - x[:, 1:2]
+        jac = np.stack([ddx, ddy, ddy * rx - ddx * ry], axis=-1)  # (N, M, 3)
+        h = np.einsum("nmk,nml->nkl", jac, jac) + np.eye(3) * 1e-6
+        step = -np.linalg.solve(h, np.einsum("nmk,nm->nk", jac, d)[..., None])[..., 0]
+        step[:, :2] = np.clip(step[:, :2], -cfg.resolution_m, cfg.resolution_m)
+        step[:, 2] = np.clip(step[:, 2], -0.01, 0.01)
+        x = x + step
+        if np.abs(step).max() < 1e-4:
+            break
+    x[:, 2] = wrap_angle(x[:, 2])
+    w = transform_points_batch(pts, x)
+    inl = (field.lookup(field.dist, w, np.inf) <= 2 * cfg.sigma_m).mean(axis=1)
+    con = field.lookup(field.free, w, 0.0).mean(axis=1)
+    return x, inl - con, inl, con
+
+
+def scan_polygon(origin: np.ndarray, ends: np.ndarray, stride: int = 1) -> np.ndarray:
+    """A scan's free-space polygon: the sensor's position, then its beams' ends in beam order
+    (``ends`` ``(B, 2)``, a no-return beam at the range it cleared), every ``stride``-th."""
+    return np.vstack([np.asarray(origin, dtype=np.float64).reshape(1, 2), np.asarray(ends, np.float64)[::stride]])
+
+
+class LoopCloser:
+    """Keyframes, loop matches and the pose graph. Feed it every corrected scan (:meth:`add`);
+    read the corrections of any pose (:meth:`corrections`)."""
+
+    def __init__(self, cfg: LoopClosureConfig) -> None:
+        self.cfg = cfg
+        self.stamps: list[float] = []  # keyframes: stamp (the caller's time key) ...
+        self.raw: list[np.ndarray] = []  # ... the filter's pose (raw frame) ...
+        self.travel: list[float] = []  # ... travel so far (m) ...
+        self.points: list[np.ndarray] = []  # ... scan points (own frame, voxel-filtered) ...
+        self.polys: list[np.ndarray] = []  # ... free-space polygon (own frame)
+        self.opt = np.zeros((0, 3))  # optimised keyframe poses
+        self.mapped = np.zeros((0, 3))  # per keyframe: the correction its scan is mapped with
+        self.map_frame = np.zeros(3)  # the correction of the scans mapped since the last rebuild
+        self.loops: list[LoopEdge] = []
+        self.attempts = 0
+        self.rejected = 0  # matches too weak or ambiguous
+        self.dropped = 0  # loop edges the solution disagreed with
+        self.log: list[tuple] = []  # (cur, ref, pose, score, inliers, contradictions, rival, kept)
+        self._travel = 0.0
+        self._last: np.ndarray | None = None
+        self._last_attempt = -math.inf
+        self._last_loop = 0.0
+
+    def __len__(self) -> int:
+        return len(self.raw)
+
+    def add(self, stamp: float, pose: np.ndarray, points: np.ndarray, polygon: np.ndarray) -> bool:
+        """A corrected scan: its stamp (any increasing time key), the filter's pose (raw frame),
+        its points and free-space polygon (:func:`scan_polygon`) in its own frame. True when
+        the scan closed a loop (the optimised poses changed)."""
+        cfg = self.cfg
+        pose = np.asarray(pose, dtype=np.float64).reshape(3)
+        if self._last is not None:
+            self._travel += math.hypot(pose[0] - self._last[0], pose[1] - self._last[1])
+        self._last = pose
+        if self.raw and (
+            self._travel - self.travel[-1] < cfg.keyframe_m
+            and abs(wrap_angle(pose[2] - self.raw[-1][2])) < cfg.keyframe_rad
+        ):
+            return False
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= cfg.max_range_m]
+        k = len(self.raw)
+        self.stamps.append(float(stamp))
+        self.raw.append(pose.copy())
+        self.travel.append(self._travel)
+        self.points.append(_voxel(pts, cfg.resolution_m))
+        self.polys.append(np.asarray(polygon, dtype=np.float64).reshape(-1, 2))
+        nxt = pose if k == 0 else compose(self.opt[k - 1], relative_pose(self.raw[k - 1], pose))
+        self.opt = np.vstack([self.opt, nxt[None]])
+        self.mapped = np.vstack([self.mapped, self.map_frame[None]])
+        if self._travel - self._last_attempt < cfg.loop_every_m:
+            return False
+        return self._try_loop(k)
+
+    # ------------------------------------------------------------------ corrections
+    def _kf_corrections(self) -> np.ndarray:
+        """``(K, 3)`` per keyframe: the transform raw -> optimised (``opt (+) raw^-1``)."""
+        raw = np.asarray(self.raw)
+        return compose(self.opt, relative_pose(raw, np.zeros(3)))
+
+    def corrections(self, stamps: np.ndarray) -> np.ndarray:
+        """``(N, 3)`` the raw -> optimised transform at each stamp: the keyframes' interpolated
+        in time (before the first keyframe its, after the last the last's)."""
+        t = np.asarray(stamps, dtype=np.float64).reshape(-1)
+        if not self.raw:
+            return np.zeros((t.size, 3))
+        corr = self._kf_corrections()
+        ks = np.asarray(self.stamps)
+        return np.stack(
+            [np.interp(t, ks, corr[:, 0]), np.interp(t, ks, corr[:, 1]), np.interp(t, ks, np.unwrap(corr[:, 2]))],
+            axis=1,
+        )
+
+    def map_shift(self) -> float:
+        """How far (m) the keyframes' optimised poses are from where the map has their scans."""
+        if not self.raw:
+            return 0.0
+        raw = np.asarray(self.raw)
+        d = self.opt[:, :2] - compose(self.mapped, raw)[:, :2]
+        return float(np.hypot(d[:, 0], d[:, 1]).max())
+
+    def mark_mapped(self) -> np.ndarray:
+        """The map was re-rendered with the current corrections: scans from now on are mapped in
+        the optimised frame of the latest keyframe. Returns that frame's correction."""
+        self.mapped = self._kf_corrections()
+        self.map_frame = self.mapped[-1].copy()
+        return self.map_frame
+
+    # ------------------------------------------------------------------ loops
+    def _submap(self, center: int, lo_m: float, hi_m: float) -> tuple[np.ndarray, list]:
+        """Points and polygons of the keyframes from ``lo_m`` to ``hi_m`` of travel (and
+        ``center`` itself) in ``center``'s frame, placed by the optimised poses."""
+        t = np.asarray(self.travel)
+        lo = min(int(np.searchsorted(t, lo_m)), center)
+        hi = max(int(np.searchsorted(t, hi_m, side="right")), center + 1)
+        rel = relative_pose(self.opt[center], self.opt[lo:hi])
+        pts = [transform_points(self.points[m], rel[m - lo]) for m in range(lo, hi)]
+        polys = [transform_points(self.polys[m], rel[m - lo]) for m in range(lo, hi)]
+        return _voxel(np.concatenate(pts), self.cfg.resolution_m), polys
+
+    def _try_loop(self, k: int) -> bool:
+        cfg = self.cfg
+        t = np.asarray(self.travel)
+        back = np.nonzero(t <= t[k] - cfg.min_loop_travel_m)[0]
+        if back.size == 0:
+            return False
+        window = min(cfg.window_min_m + cfg.window_per_m * (t[k] - self._last_loop), cfg.window_max_m)
+        d = np.hypot(self.opt[back, 0] - self.opt[k, 0], self.opt[back, 1] - self.opt[k, 1])
+        if d.min() > window + 0.5 * cfg.submap_m:
+            return False
+        self._last_attempt = t[k]
+        j = int(back[np.argmin(d)])
+        ref, polys = self._submap(j, t[j] - cfg.submap_m, min(t[j] + cfg.submap_m, t[k] - cfg.min_loop_travel_m))
+        query, _ = self._submap(k, t[k] - cfg.submap_m, t[k])
+        self.attempts += 1
+        m = match_submaps(query, ref, polys, relative_pose(self.opt[j], self.opt[k]), window, cfg)
+        if m is None:
+            return False
+        pose, score, inl, con, rival = m
+        kept = inl >= cfg.min_inliers and con <= cfg.max_contradictions and score - rival >= cfg.min_margin
+        self.log.append((k, j, pose, score, inl, con, rival, kept))
+        if not kept:
+            self.rejected += 1
+            return False
+        self.loops.append(LoopEdge(j, k, pose, score, rival))
+        self._last_loop = t[k]
+        self._solve()
+        return True
+
+    def _solve(self) -> None:
+        cfg = self.cfg
+        raw = np.asarray(self.raw)
+        n = raw.shape[0]
+        z_seq = relative_pose(raw[:-1], raw[1:])
+        dist = np.hypot(z_seq[:, 0], z_seq[:, 1])
+        info_seq = np.zeros((n - 1, 3, 3))
+        # along / across the direction of travel (the edge's frame is the earlier keyframe's)
+        ux, uy = z_seq[:, 0] / np.maximum(dist, 1e-9), z_seq[:, 1] / np.maximum(dist, 1e-9)
+        ux[dist < 1e-9], uy[dist < 1e-9] = 1.0, 0.0
+        w_along = (cfg.seq_sigma_xy_m + cfg.seq_sigma_xy_per_m * dist) ** -2
+        w_lat = (cfg.seq_sigma_xy_m + cfg.seq_sigma_lateral_per_m * dist) ** -2
+        info_seq[:, 0, 0] = w_along * ux * ux + w_lat * uy * uy
+        info_seq[:, 1, 1] = w_along * uy * uy + w_lat * ux * ux
+        info_seq[:, 0, 1] = info_seq[:, 1, 0] = (w_along - w_lat) * ux * uy
+        info_seq[:, 2, 2] = (cfg.seq_sigma_rad + cfg.seq_sigma_rad_per_m * dist) ** -2
+        info_loop = np.diag([cfg.loop_sigma_xy_m**-2] * 2 + [cfg.loop_sigma_rad**-2])
+        x = self.opt
+        for _ in range(3):  # drop the loop edges the solution disagrees with, then solve again
+            e = self.loops
+            i = np.concatenate([np.arange(n - 1), [a.ref for a in e]]).astype(np.int64)
+            j = np.concatenate([np.arange(1, n), [a.cur for a in e]]).astype(np.int64)
+            z = np.vstack([z_seq, *(a.z[None] for a in e)])
+            info = np.concatenate([info_seq, np.repeat(info_loop[None], len(e), axis=0)])
+            robust = np.arange(i.size) >= n - 1
+            x, chi2 = optimize(self.opt, i, j, z, info, robust, cfg.cauchy)
+            bad = chi2[n - 1 :] > cfg.max_chi2
+            if not bad.any():
+                break
+            self.dropped += int(bad.sum())
+            self.loops = [a for a, b in zip(e, bad) if not b]
+        self.opt = x

@@ -1,0 +1,232 @@
+"""Loop closure (core/posegraph.py, core/loops.py): the pose graph's solution, the loop match
+(exact, refused when ambiguous or contradicted), the back end on a drifting loop, and the
+stages' frame change (the map re-rendered, the filter's set moved with it)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from pf_slam_nodes.core.config import (
+    CorrelationConfig,
+    FilterConfig,
+    GridConfig,
+    LoopClosureConfig,
+    ResampleConfig,
+)
+from pf_slam_nodes.core.geometry import compose, relative_pose, wrap_angle
+from pf_slam_nodes.core.loops import LoopCloser, match_submaps, scan_polygon
+from pf_slam_nodes.core.posegraph import edge_errors, optimize
+from pf_slam_nodes.core.stages import CorrectionStage, MapPatch, MappingStage
+
+# --------------------------------------------------------------------------- pose graph
+
+
+def test_edge_jacobians_match_finite_differences():
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(4, 3))
+    i, j = np.array([0, 1, 2, 0]), np.array([1, 2, 3, 3])
+    z = rng.normal(size=(4, 3))
+    e, a, b = edge_errors(x, i, j, z)
+    eps = 1e-7
+    for k in range(4):
+        for c in range(3):
+            for node, jac in ((i[k], a), (j[k], b)):
+                xp = x.copy()
+                xp[node, c] += eps
+                num = (edge_errors(xp, i, j, z)[0][k] - e[k]) / eps
+                num[2] = wrap_angle(num[2] * eps) / eps
+                np.testing.assert_allclose(num, jac[k][:, c], atol=1e-5)
+
+
+def _square(n_side: int = 10, step: float = 1.0) -> np.ndarray:
+    """Poses around a square, counter-clockwise, ``n_side`` steps a side."""
+    poses, p = [], np.zeros(3)
+    for _ in range(4):
+        for _ in range(n_side):
+            poses.append(p)
+            p = compose(p, np.array([step, 0.0, 0.0]))
+        p = compose(p, np.array([0.0, 0.0, math.pi / 2]))
+    return np.array(poses)
+
+
+def test_pose_graph_spreads_a_loop_error_and_downweights_a_wrong_loop_edge():
+    truth = _square()
+    n = len(truth)
+    z_seq = relative_pose(truth[:-1], truth[1:])
+    drifted = z_seq.copy()
+    drifted[:, 2] += 0.015  # a heading bias: the chain alone ends 0.6 rad and metres off
+    x0 = np.vstack([truth[:1], compose(truth[0], drifted[0])[None]])
+    for k in range(1, n - 1):
+        x0 = np.vstack([x0, compose(x0[-1], drifted[k])[None]])
+    loop = relative_pose(truth[0], truth[-1])
+    wrong = relative_pose(truth[5], truth[25]) + np.array([3.0, -2.0, 0.5])
+    i = np.concatenate([np.arange(n - 1), [0, 5]])
+    j = np.concatenate([np.arange(1, n), [n - 1, 25]])
+    z = np.vstack([drifted, loop, wrong])
+    info = np.repeat(np.diag([100.0, 100.0, 400.0])[None], len(i), axis=0)
+    info[-2:] = np.diag([400.0, 400.0, 2500.0])
+    robust = np.arange(len(i)) >= n - 1
+    x, chi2 = optimize(x0, i, j, z, info, robust, cauchy=1.0)
+    err0 = np.hypot(*(x0[:, :2] - truth[:, :2]).T).max()
+    err = np.hypot(*(x[:, :2] - truth[:, :2]).T).max()
+    assert err0 > 3.0
+    assert err < 0.35 * err0
+    assert chi2[-1] > 100 * chi2[-2]  # the wrong edge is the one left disagreeing
+
+
+# --------------------------------------------------------------------------- loop match
+
+
+def _room_points(rng: np.random.Generator) -> np.ndarray:
+    """Walls of a 12 m x 8 m room with a pillar and two boxes, sampled every 2 cm."""
+    segs = [((0, 0), (12, 0)), ((12, 0), (12, 8)), ((12, 8), (0, 8)), ((0, 8), (0, 0))]
+    for cx, cy, hx, hy in ((4.0, 3.0, 0.3, 0.3), (8.5, 5.5, 0.8, 0.4), (2.0, 6.5, 0.5, 0.9)):
+        c = [(cx - hx, cy - hy), (cx + hx, cy - hy), (cx + hx, cy + hy), (cx - hx, cy + hy)]
+        segs += [(c[k], c[(k + 1) % 4]) for k in range(4)]
+    pts = []
+    for (x0, y0), (x1, y1) in segs:
+        n = max(2, int(math.hypot(x1 - x0, y1 - y0) / 0.02))
+        t = np.linspace(0, 1, n)
+        pts.append(np.stack([x0 + t * (x1 - x0), y0 + t * (y1 - y0)], 1))
+    p = np.concatenate(pts)
+    return p + rng.normal(scale=0.005, size=p.shape)
+
+
+ROOM_POLY = [np.array([[0.05, 0.05], [11.95, 0.05], [11.95, 7.95], [0.05, 7.95]])]
+
+
+def test_match_recovers_an_offset_pose_within_centimetres():
+    rng = np.random.default_rng(1)
+    cfg = LoopClosureConfig(enabled=True)
+    ref = _room_points(rng)
+    true = np.array([0.7, -0.4, 0.06])  # the query's frame in the reference's
+    query = transform_inverse(_room_points(rng), true)
+    m = match_submaps(query, ref, ROOM_POLY, np.zeros(3), 1.5, cfg)
+    assert m is not None
+    pose, score, inliers, contradictions, rival = m
+    assert np.hypot(*(pose[:2] - true[:2])) < 0.02
+    assert abs(wrap_angle(pose[2] - true[2])) < math.radians(0.3)
+    assert inliers > 0.9 and contradictions < 0.02
+    assert score - rival > cfg.min_margin
+
+
+def transform_inverse(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """World points into the frame of ``pose``."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    d = points - pose[:2]
+    return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], 1)
+
+
+def test_match_in_a_featureless_corridor_is_ambiguous():
+    """Two long parallel walls: every shift along them fits as well, so the best candidate has
+    rivals metres away that score the same and a loop closer must not keep it."""
+    x = np.arange(-20, 20, 0.02)
+    ref = np.concatenate([np.stack([x, np.full_like(x, -1.2)], 1), np.stack([x, np.full_like(x, 1.2)], 1)])
+    query = np.concatenate(
+        [np.stack([x[::3] / 2, np.full(x[::3].size, -1.2)], 1), np.stack([x[::3] / 2, np.full(x[::3].size, 1.2)], 1)]
+    )
+    cfg = LoopClosureConfig(enabled=True)
+    poly = [np.array([[-20.0, -1.15], [20.0, -1.15], [20.0, 1.15], [-20.0, 1.15]])]
+    pose, score, inliers, _, rival = match_submaps(query, ref, poly, np.zeros(3), 3.0, cfg)
+    assert inliers > 0.9
+    assert score - rival < cfg.min_margin
+
+
+def test_a_wall_where_the_reference_saw_free_space_contradicts_the_match():
+    rng = np.random.default_rng(2)
+    cfg = LoopClosureConfig(enabled=True)
+    ref = _room_points(rng)
+    extra = np.stack([np.full(200, 6.0), np.linspace(1.0, 7.0, 200)], 1)  # a wall across the room
+    query = np.concatenate([_room_points(rng), extra])
+    _, _, _, contradictions, _ = match_submaps(query, ref, ROOM_POLY, np.zeros(3), 1.0, cfg)
+    assert contradictions > cfg.max_contradictions
+
+
+# --------------------------------------------------------------------------- the back end
+
+
+def _ray_room(pose: np.ndarray, n_beams: int = 181, max_range: float = 20.0):
+    """Ranges of a 360-degree laser at ``pose`` in the room of :func:`_room_points` (exact)."""
+    from pf_slam_tools.sim.indoor import ray_cast
+
+    segs = []
+    for (x0, y0), (x1, y1) in [((0, 0), (12, 0)), ((12, 0), (12, 8)), ((12, 8), (0, 8)), ((0, 8), (0, 0))]:
+        segs.append((x0, y0, x1, y1))
+    for cx, cy, hx, hy in ((4.0, 3.0, 0.3, 0.3), (8.5, 5.5, 0.8, 0.4), (2.0, 6.5, 0.5, 0.9)):
+        c = [(cx - hx, cy - hy), (cx + hx, cy - hy), (cx + hx, cy + hy), (cx - hx, cy + hy)]
+        segs += [(*c[k], *c[(k + 1) % 4]) for k in range(4)]
+    angles = np.linspace(-math.pi, math.pi, n_beams, endpoint=False)
+    r = ray_cast(pose[None], angles, np.asarray(segs, float), max_range).reshape(-1)
+    return r, angles
+
+
+def _loop_drive() -> np.ndarray:
+    """Twice around a 6 m x 3 m rectangle inside the room, 0.25 m steps (true poses)."""
+    pts = []
+    for _ in range(2):
+        for (x0, y0), (x1, y1) in (((3, 2), (9, 2)), ((9, 2), (9, 5)), ((9, 5), (3, 5)), ((3, 5), (3, 2))):
+            n = int(math.hypot(x1 - x0, y1 - y0) / 0.25)
+            th = math.atan2(y1 - y0, x1 - x0)
+            for t in np.arange(n) / n:
+                pts.append((x0 + t * (x1 - x0), y0 + t * (y1 - y0), th))
+    return np.array(pts)
+
+
+def test_loop_closer_pulls_a_drifting_trajectory_back():
+    """The "filter" drifts 0.4 deg and 1 % per metre; once the drive comes round, the corrected
+    keyframes are far closer to the truth than the drifted ones."""
+    pytest.importorskip("pf_slam_tools")
+    truth = _loop_drive()
+    inc = relative_pose(truth[:-1], truth[1:])
+    inc[:, 0] *= 1.01
+    inc[:, 2] += math.radians(0.4) * np.hypot(inc[:, 0], inc[:, 1])
+    drifted = [truth[0]]
+    for d in inc:
+        drifted.append(compose(drifted[-1], d))
+    drifted = np.array(drifted)
+    cfg = LoopClosureConfig(enabled=True, min_loop_travel_m=10.0, submap_m=5.0)
+    lc = LoopCloser(cfg)
+    for k, (t, p) in enumerate(zip(truth, drifted)):
+        r, a = _ray_room(t)
+        ends = np.stack([np.minimum(r, 20.0) * np.cos(a), np.minimum(r, 20.0) * np.sin(a)], 1)
+        pts = ends[np.isfinite(r)]
+        lc.add(float(k), p, pts, scan_polygon(np.zeros(2), ends))
+    assert len(lc.loops) >= 3
+    out = compose(lc.corrections(np.arange(len(truth), dtype=float)), drifted)
+    before = np.hypot(*(drifted[:, :2] - truth[:, :2]).T)
+    after = np.hypot(*(out[:, :2] - truth[:, :2]).T)
+    assert before[-20:].mean() > 0.5
+    assert after[-20:].mean() < 0.3 * before[-20:].mean()
+
+
+# --------------------------------------------------------------------------- stages
+
+
+def test_a_frame_change_patch_moves_the_next_set_and_replaces_the_field():
+    stage = CorrectionStage(
+        FilterConfig(num_particles=3), GridConfig(size_x_m=10, size_y_m=10), CorrelationConfig(), ResampleConfig()
+    )
+    occ = np.full((40, 60), -1, np.int8)
+    occ[10, 5:55] = 100
+    move = np.array([1.0, -2.0, 0.3])
+    stage.apply_patch(MapPatch(occ, 0.05, np.array([3.0, 4.0]), move))
+    assert stage.field.width == 60 and stage.field.height == 40  # exactly the re-rendered grid
+    np.testing.assert_allclose(stage.field.origin, [3.0, 4.0])
+    parts = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.1], [0.0, 1.0, -0.2]])
+    c = stage.correct(parts, np.full(3, -math.log(3)), np.array([]), np.array([]))
+    np.testing.assert_allclose(
+        c.particles[np.argsort(c.particles[:, 0])], compose(move, parts)[np.argsort(compose(move, parts)[:, 0])]
+    )
+
+
+def test_mapping_stage_maps_poses_across_its_frame_changes():
+    stage = MappingStage(FilterConfig(), GridConfig(size_x_m=10, size_y_m=10), None, LoopClosureConfig(enabled=True))
+    stage.loops.add(0.0, np.zeros(3), np.zeros((0, 2)), np.zeros((1, 2)))
+    stage.loops.opt[0] = [0.5, 0.0, 0.0]  # as if a solution moved the first keyframe
+    # the filter's frame changed at key 5: poses from then on are in a frame 1 m further on
+    stage.frames.append((5.0, np.array([-1.0, 0.0, 0.0])))
+    out = stage.corrected(np.array([1.0, 6.0]), np.array([[2.0, 0.0, 0.0], [3.0, 0.0, 0.0]]))
+    np.testing.assert_allclose(out, [[2.5, 0.0, 0.0], [2.5, 0.0, 0.0]], atol=1e-12)
