@@ -78,7 +78,7 @@ def test_sample_bag_pose_error_and_map(sample_run):
     assert list((out / "snapshots").glob("*.png"))
     # per-stage split of a scan: every stage ran, and the parts add up to the wall time
     split = s["stage_ms_per_scan"]
-    assert set(split) == {"predict", "correlate", "resample", "map", "field", "messaging"}
+    assert set(split) == {"predict", "correlate", "resample", "map", "field", "loops", "messaging"}
     assert all(split[k] > 0 for k in ("predict", "correlate", "map", "field"))
     assert split["messaging"] > 0
     assert abs(sum(split.values()) * 600 / 1e3 - s["wall_time_s"]) < 0.01 * s["wall_time_s"] + 0.01

@@ -24,16 +24,16 @@ from pf_slam_nodes.core import config as cfg  # noqa: E402
 from pf_slam_nodes.core.motion import wrap_angle  # noqa: E402
 from pf_slam_nodes.core.slam import ParticleFilterSlam  # noqa: E402
 from pf_slam_nodes.io.bag import bag_info, read_bag  # noqa: E402
-from pf_slam_nodes.io.trajectory import quat_to_yaw  # noqa: E402
+from pf_slam_nodes.io.trajectory import quat_to_yaw, read_trajectory  # noqa: E402
 from pf_slam_nodes.ros import cdr  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "ros2_ws/src/pf_slam_nodes/config"
 
 
-def _graph_parameters(bag: Path, params_file: Path) -> tuple[dict, dict, dict]:
-    """What `pf-slam run` gives the predictor and the correlator for this bag (the bag's implied
-    parameters, then the file), and the inputs it selects."""
+def _graph_parameters(bag: Path, params_file: Path) -> tuple[dict, dict, dict, dict]:
+    """What `pf-slam run` gives the predictor, the correlator and the mapper for this bag (the
+    bag's implied parameters, then the file), and the inputs it selects."""
     info = bag_info(bag)
     file_layer = graph.load_params(params_file)
     inputs = graph.select_inputs(str(bag), info, graph.params_topics(file_layer))
@@ -41,12 +41,12 @@ def _graph_parameters(bag: Path, params_file: Path) -> tuple[dict, dict, dict]:
     assert not stamps["restamp"]  # the replay passes the stamps on unchanged
     mount = graph.lidar_mount(str(bag), info, inputs)
     layers = [graph.detect_inputs(str(bag), info, inputs, mount=mount, stamps=stamps), file_layer]
-    return graph.node_params(layers, "predictor"), graph.node_params(layers, "correlator"), inputs
+    return (*(graph.node_params(layers, n) for n in ("predictor", "correlator", "mapper")), inputs)
 
 
 def _stream_loop(bag: Path, params_file: Path) -> tuple[ParticleFilterSlam, list]:
     """The bag through the ROS-free loop, message by message in record order."""
-    pred, corr, inputs = _graph_parameters(bag, params_file)
+    pred, corr, mapper, inputs = _graph_parameters(bag, params_file)
     slam = ParticleFilterSlam(
         config_section(cfg.FilterConfig, corr, "filter"),
         config_section(cfg.OdometryMotionConfig, pred, "motion"),
@@ -54,6 +54,7 @@ def _stream_loop(bag: Path, params_file: Path) -> tuple[ParticleFilterSlam, list
         config_section(cfg.CorrelationConfig, corr, "correlation"),
         config_section(cfg.ResampleConfig, corr, "resample"),
         config_section(cfg.LaserConfig, corr, "laser"),
+        config_section(cfg.LoopClosureConfig, mapper, "loops"),
     )
     assert config_section(cfg.FilterConfig, pred, "filter") == slam.predictor.filter_cfg
     source = pred.get("odometry_source", "odom")
@@ -127,6 +128,31 @@ def test_car_encoders_fog_stream_loop_equals_graph(tmp_path, ros_domain):
     assert {k: v for k, v in faults.items() if v} == {"odom_missing": 1}
     assert all(res.summary["faults"][k] == v for k, v in faults.items())
     assert slam.scheduler.gyro_status()["gyro"] == res.summary["gyro"]
+
+
+def test_loop_closure_stream_loop_equals_graph(tmp_path, ros_domain):
+    """loops.enabled with a re-rendering at every closed loop (rebuild_m 0): the mapper's frame
+    change reaches the correlator (the marker, then the whole map) exactly where the loop's
+    does; the poses as published are the same, and so is the final trajectory."""
+    params = tmp_path / "sample_loops.yaml"
+    params.write_text(
+        (CONFIG / "sim_indoor.yaml").read_text()
+        + "mapper:\n  ros__parameters:\n    loops:\n      enabled: true\n      rebuild_m: 0.0\n"
+    )
+    bag = ROOT / "bags" / "sample_indoor"
+    slam, stream = _stream_loop(bag, params)
+    res = _graph_run(bag, params, tmp_path / "sample", ros_domain)
+    _assert_same(stream, res)
+    assert slam.mapper.rebuilds >= 2 and slam.corrector.frame_changes == slam.mapper.rebuilds
+    stamps = np.array([s for s, _ in stream])
+    final = slam.trajectory(stamps / 1e9, np.array([p for _, p in stream]))  # (+ the end's rendering, if due)
+    assert res.summary["loops"]["map_renders"] == slam.mapper.rebuilds
+    t, p = read_trajectory(tmp_path / "sample" / "trajectory.tum")[:2]
+    assert np.allclose(t, stamps / 1e9, atol=1e-9)
+    assert np.abs(p[:, :2] - final[:, :2]).max() < 2e-6  # the TUM file's 6 decimals
+    online = read_trajectory(tmp_path / "sample" / "trajectory_online.tum")[1]
+    assert np.abs(online[:, :2] - np.array(res.poses)[:, :2]).max() < 2e-6
+    assert np.abs(final[:, :2] - online[:, :2]).max() > 0.001  # the loop closure moved them
 
 
 def test_sample_odometry_stream_loop_equals_graph(tmp_path, ros_domain):

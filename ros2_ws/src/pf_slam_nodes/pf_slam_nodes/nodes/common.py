@@ -34,6 +34,7 @@ CONFIG_SECTIONS: dict[str, type] = {
     "resample": cfg.ResampleConfig,
     "laser": cfg.LaserConfig,
     "localization": cfg.LocalizationConfig,
+    "loops": cfg.LoopClosureConfig,
 }
 
 

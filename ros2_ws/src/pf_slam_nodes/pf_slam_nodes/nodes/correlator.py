@@ -5,7 +5,9 @@ scans it sends to be corrected; the n-th belongs to the n-th set with update=tru
 particles/predicted (ParticleArray: one per correction, plus the pass-through end-of-run set),
 pf_slam/grid (after each integration, the mapper's patch: occupancy of the cells that scan
 touched; a patch with resolution 0 is the mapper's reset: the field is dropped and starts again,
-as at the first scan, with the next patch). Publishes: particles/updated (one per predicted set, carrying the
+as at the first scan, with the next patch; a patch with a negative resolution is a closed
+loop's frame change (loops.*): its origin pose is the transform the next set follows, and the
+next patch, the whole re-rendered map, becomes the field). Publishes: particles/updated (one per predicted set, carrying the
 pose estimate: the best particle or the weighted mean, filter.pose_estimate).
 
 A corrected set (update=true) is scored against the map that holds every scan corrected before
@@ -116,6 +118,9 @@ class Correlator(Node):
     def _on_grid(self, msg: OccupancyGrid) -> None:
         if msg.info.resolution == 0.0:  # the mapper's reset: a new map from its next patch on
             self.stage.field = self.stage.known = None
+            return
+        if msg.info.resolution < 0.0:  # a closed loop moved the map: the next patch is all of it
+            self.stage.frame_change(convert.frame_change_transform(msg))
             return
         occ, res, origin = convert.msg_to_grid(msg)
         self.stage.apply_patch(MapPatch(occ, res, np.asarray(origin)))

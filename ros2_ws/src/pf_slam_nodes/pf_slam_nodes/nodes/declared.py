@@ -19,7 +19,7 @@ NODE_SECTIONS: dict[str, tuple[str, ...]] = {
     "bag_replay": (),
     "predictor": ("filter", "motion", "wheels", "laser"),  # wheels: with odometry_source encoders only
     "correlator": ("filter", "grid", "correlation", "resample", "laser", "localization"),
-    "mapper": ("filter", "grid", "laser"),
+    "mapper": ("filter", "grid", "laser", "loops"),
     "texture": ("texture",),
 }
 
@@ -115,6 +115,7 @@ def section_class(section: str) -> type:
         "resample": cfg.ResampleConfig,
         "laser": cfg.LaserConfig,
         "localization": cfg.LocalizationConfig,
+        "loops": cfg.LoopClosureConfig,
     }[section]
 
 

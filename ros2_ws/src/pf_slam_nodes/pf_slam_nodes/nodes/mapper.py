@@ -6,11 +6,19 @@ particles/updated (ParticleArray: every corrected set, and the end-of-run pass-t
 pf_slam/replay_status (messages per topic, at the end of the bag).
 Publishes: pf_slam/grid (after every integration, the patch of cells the scan touched, for
 the correlator), map + map_metadata (latched, on a timer and once more after the last scan),
-path (on the timer: the poses of the corrected scans), /tf (map -> odom = map_T_base *
+path (on the timer: the poses of the corrected scans), pf_slam/trajectory (with loops.enabled,
+latched, once every scan's pose has arrived after the last one: every pose in the final frame
+of the loop closure), /tf (map -> odom = map_T_base *
 odom_T_base^-1, at every correction: between corrections map -> odom does not change, since scan
 poses are then the corrected pose composed with the odometry increment), /tf_static (base_frame ->
 the scan's frame from filter.sensor_offset_* / laser.extrinsic, once, if publish_sensor_tf).
 /map holds map_server trinary values: 100 / 0 / -1 by occupied_thresh / free_thresh.
+
+loops.enabled -- the loop closure (core/loops.py) runs on the integrated scans. A closed loop that
+moves the map re-renders it from the optimised poses: the correlator gets a frame-change marker
+(pf_slam/grid, resolution -1, the transform as its origin) and then the whole new map, and the
+filter goes on in that frame. After the last scan the map is re-rendered once more if the final
+solution moved it, and the trajectory (and /path) go out in the final frame.
 
 mode: localization -- the map is map_file (a map_server .yaml), loaded at start-up and published
 latched on /map as loaded (at once, for the correlator, then like a built map); without map_file
@@ -89,7 +97,10 @@ class Mapper(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("mapper", **kwargs)
         self.stage = MappingStage(
-            declare_config(self, "filter"), declare_config(self, "grid"), declare_config(self, "laser")
+            declare_config(self, "filter"),
+            declare_config(self, "grid"),
+            declare_config(self, "laser"),
+            declare_config(self, "loops"),
         )
         self.map_frame = param(self, "map_frame", "map")
         self.odom_frame = param(self, "odom_frame", "odom")
@@ -120,6 +131,10 @@ class Mapper(Node):
         self.pub_map = self.create_publisher(OccupancyGrid, topics.MAP, qos.latched())
         self.pub_meta = self.create_publisher(MapMetaData, topics.MAP_METADATA, qos.latched())
         self.pub_path = self.create_publisher(Path, topics.PATH, qos.outputs(10))
+        self.pub_trajectory = self.create_publisher(Path, topics.TRAJECTORY, qos.latched())
+        self.poses_seen = 0  # /pose messages received (the final trajectory waits for all of them)
+        self.final_map_sent = self.final_trajectory_sent = False
+        self.scans_total = 0  # the bag's scans, once the final map went out
         self.pub_tf = self.create_publisher(TFMessage, topics.TF, qos.outputs())
         self.pub_tf_static = (
             self.create_publisher(TFMessage, topics.TF_STATIC, qos.latched())
@@ -141,9 +156,7 @@ class Mapper(Node):
         self.create_service(SaveMap, topics.SAVE_MAP, self._srv_save_map)
         self.create_service(SetBool, topics.PAUSE_MAPPING, self._srv_pause)
         self.create_service(Trigger, topics.RESET, self._srv_reset)
-        status_publisher(
-            self, lambda: {"faults": {"scans_lost_mapper": self.scans.lost, "map_beyond_bound": self._beyond_bound()}}
-        )
+        self.publish_status = status_publisher(self, self._status)
         self._warned_bound = False
         self.mount_ready = not param(self, "mount_from_tf", False)  # else: wait for the predictor's decision
         if not self.mount_ready:
@@ -161,15 +174,36 @@ class Mapper(Node):
             self.mount_ready = True
             self._drain()
 
+    def _status(self) -> dict:
+        out = {"faults": {"scans_lost_mapper": self.scans.lost, "map_beyond_bound": self._beyond_bound()}}
+        lc = self.stage.loops
+        if lc is not None:
+            out["loops"] = {
+                "keyframes": len(lc),
+                "attempts": lc.attempts,
+                "closed": len(lc.loops),
+                "rejected": lc.rejected,
+                "dropped": lc.dropped,
+                "map_renders": self.stage.rebuilds,
+            }
+        return out
+
     def _beyond_bound(self) -> int:
         """Scans with cells the grid could not grow to (grid.max_cells)."""
         return 0 if self.stage.grid is None else int(self.stage.grid.scans_beyond_bound)
 
     def _on_pose(self, raw: bytes) -> None:
         stamp, pose = cdr.pose_stamped_xy_yaw(raw)
-        if stamp < self.trajectory_from:  # a scan before the last reset
-            return
-        self.trajectory.append(stamp, pose)
+        self.poses_seen += 1
+        if stamp >= self.trajectory_from:  # not a scan before the last reset
+            self.trajectory.append(stamp, pose)
+        if self.final_map_sent:
+            self._maybe_finish()
+
+    def corrected_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every scan's stamp (ns) and pose so far, in the loop closure's optimised frame."""
+        stamps, poses = self.trajectory.arrays()
+        return stamps, self.stage.corrected(stamps / 1e9, poses)
 
     # ------------------------------------------------------------------ services
     def _srv_save_map(self, req: SaveMap.Request, res: SaveMap.Response) -> SaveMap.Response:
@@ -193,7 +227,7 @@ class Mapper(Node):
                     out, occ, resolution, origin, occupied_thresh=self.thresholds[0], free_thresh=self.thresholds[1]
                 )
                 tum = out / "trajectory.tum"
-                stamps, poses = self.trajectory.arrays()
+                stamps, poses = self.corrected_trajectory()
                 write_tum(tum, stamps / 1e9, poses)
             except OSError as e:
                 res.message = f"save_map: cannot write into {out}: {e}"
@@ -296,7 +330,15 @@ class Mapper(Node):
 
     def _integrate(self, pa: ParticleArray, pose: np.ndarray, scan, stamp: int) -> None:
         """SLAM: the scan into the grid at the pose; its patch to the correlator."""
-        patch = self.stage.integrate(pose, *scan_fields(scan), extrinsic=mount_of(pa))
+        patch = self.stage.integrate(pose, *scan_fields(scan), extrinsic=mount_of(pa), key=stamp / 1e9)
+        if patch.transform is not None:  # a closed loop re-rendered the map: the filter's frame follows
+            self.pub_grid.publish(convert.frame_change_msg(patch.transform, stamp, self.map_frame))
+            t = patch.transform
+            self.get_logger().info(
+                f"scan {pa.scan_index}: loop closed ({len(self.stage.loops.loops)} so far), map re-rendered "
+                f"from the optimised poses; the frame moves by x {t[0]:.3f} y {t[1]:.3f} m, "
+                f"yaw {np.degrees(t[2]):.2f} deg"
+            )
         g = self.stage.grid
         if g.scans_beyond_bound and not self._warned_bound:
             self._warned_bound = True
@@ -325,8 +367,24 @@ class Mapper(Node):
 
     def _maybe_finish(self) -> None:
         if self.total is not None and self.last_index == self.total - 1:
+            if not self.localize and self.stage.finish():
+                self.get_logger().info("end of the run: map re-rendered from the final loop-closure solution")
+            if self.stage.loops is not None:
+                self.path = [convert.pose_stamped(p, s, self.map_frame) for s, p in zip(*self._path_corrected())]
             self.publish_map()
-            self.total = None  # publish the final map once
+            self.publish_status()
+            self.final_map_sent, self.scans_total, self.total = True, self.total, None  # the final map once
+        if self.stage.loops is not None and self.final_map_sent and not self.final_trajectory_sent:
+            if self.poses_seen >= self.scans_total:  # every scan's pose is here
+                self.final_trajectory_sent = True
+                stamps, poses = self.corrected_trajectory()
+                self.pub_trajectory.publish(convert.path_msg(stamps, poses, self.last_stamp, self.map_frame))
+
+    def _path_corrected(self) -> tuple[np.ndarray, np.ndarray]:
+        """/path's poses (the corrected scans') in the final frame."""
+        path = Path(poses=self.path)
+        stamps, poses = convert.path_arrays(path)
+        return stamps, self.stage.corrected(stamps / 1e9, poses)
 
     def publish_map(self) -> None:
         if self.localize:  # the loaded map, unchanged (without map_file: another node's /map)

@@ -12,7 +12,7 @@ from sensor_msgs.msg import LaserScan
 
 from pf_slam_interfaces.msg import ParticleArray
 
-from ..core.geometry import yaw_to_quat
+from ..core.geometry import quat_to_yaw, yaw_to_quat
 from ..io.bag import stamp_ns_of as stamp_to_ns  # noqa: F401  (Time or message -> int ns)
 from .cdr import CdrReader
 
@@ -92,6 +92,34 @@ def pose_stamped(pose: np.ndarray, stamp_ns: int, frame_id: str) -> PoseStamped:
     return msg
 
 
+def path_msg(stamps_ns: np.ndarray, poses: np.ndarray, stamp_ns: int, frame_id: str):
+    """nav_msgs/Path of ``(K, 3)`` poses at ``stamps_ns`` (``(K,)``), the path stamped ``stamp_ns``."""
+    from nav_msgs.msg import Path
+
+    msg = Path()
+    msg.header.stamp = ns_to_stamp(int(stamp_ns))
+    msg.header.frame_id = frame_id
+    msg.poses = [pose_stamped(p, int(t), frame_id) for t, p in zip(stamps_ns, poses)]
+    return msg
+
+
+def path_arrays(msg) -> tuple[np.ndarray, np.ndarray]:
+    """A nav_msgs/Path's stamps (ns, ``(K,)``) and poses ``(K, 3)``."""
+    stamps = np.array([stamp_to_ns(p.header.stamp) for p in msg.poses], dtype=np.int64)
+    poses = np.array(
+        [
+            (
+                p.pose.position.x,
+                p.pose.position.y,
+                quat_to_yaw(p.pose.orientation.x, p.pose.orientation.y, p.pose.orientation.z, p.pose.orientation.w),
+            )
+            for p in msg.poses
+        ],
+        dtype=np.float64,
+    ).reshape(-1, 3)
+    return stamps, poses
+
+
 def transform(parent: str, child: str, pose: np.ndarray, stamp_ns: int) -> TransformStamped:
     t = TransformStamped()
     t.header.stamp = ns_to_stamp(stamp_ns)
@@ -120,6 +148,21 @@ def grid_to_msg(
     msg.info.origin.orientation.w = 1.0
     msg.data = array.array("b", np.ascontiguousarray(occupancy, dtype=np.int8).tobytes())
     return msg
+
+
+def frame_change_msg(transform, stamp_ns: int, frame_id: str) -> OccupancyGrid:
+    """The mapper's frame-change marker on pf_slam/grid (loop closure): no cells, resolution -1,
+    the transform ``(x, y, yaw)`` the filter's set follows as the origin pose."""
+    msg = grid_to_msg(np.zeros((0, 0), np.int8), -1.0, (float(transform[0]), float(transform[1])), stamp_ns, frame_id)
+    _, _, qz, qw = yaw_to_quat(float(transform[2]))
+    msg.info.origin.orientation.z, msg.info.origin.orientation.w = qz, qw
+    return msg
+
+
+def frame_change_transform(msg: OccupancyGrid) -> np.ndarray:
+    """``(x, y, yaw)`` of a frame-change marker (:func:`frame_change_msg`)."""
+    p, q = msg.info.origin.position, msg.info.origin.orientation
+    return np.array([p.x, p.y, quat_to_yaw(q.x, q.y, q.z, q.w)])
 
 
 def msg_to_grid(msg: OccupancyGrid) -> tuple[np.ndarray, float, tuple[float, float]]:

@@ -74,7 +74,13 @@ def _write_outputs(out: Path, rec: _Recorder, texture: bool, texture_out) -> dic
     returns the summary entries they add. Also what a stopped run leaves behind."""
     from ..ros import convert
 
-    write_tum(out / "trajectory.tum", np.array(rec.stamps, dtype=np.int64) / 1e9, np.array(rec.poses).reshape(-1, 3))
+    online = (np.array(rec.stamps, dtype=np.int64) / 1e9, np.array(rec.poses).reshape(-1, 3))
+    final = rec.final_trajectory() if rec.loops else None
+    if final is not None:  # the loop closure's final frame; the poses as published beside it
+        write_tum(out / "trajectory.tum", final[0] / 1e9, final[1])
+        write_tum(out / "trajectory_online.tum", *online)
+    else:
+        write_tum(out / "trajectory.tum", *online)
     if rec.map_msg is None:
         return {"map": None}
     occ, res, origin = convert.msg_to_grid(rec.map_msg)
@@ -163,6 +169,7 @@ def build_summary(plan: RunPlan, dom: RosDomain, done: GraphOutcome, extra: dict
         **({"timestamps": checks["timestamps"]} if checks["timestamps"] else {}),
         **({"gyro": gyro} if (gyro := rec.node_status.get("predictor", {}).get("gyro")) else {}),
         **({"localization": loc} if (loc := rec.node_status.get("correlator", {}).get("localization")) else {}),
+        **({"loops": lp} if (lp := rec.node_status.get("mapper", {}).get("loops")) else {}),
         "complete": stopped_by is None,
         **({} if stopped_by is None else {"stopped_by": stopped_by}),
         **extra,

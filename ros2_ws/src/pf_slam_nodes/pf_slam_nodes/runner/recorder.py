@@ -29,9 +29,10 @@ class _Recorder:
         snapshot_every: int,
         progress: bool,
         texture: bool = False,
+        loops: bool = False,
     ) -> None:
         from geometry_msgs.msg import PoseStamped
-        from nav_msgs.msg import OccupancyGrid
+        from nav_msgs.msg import OccupancyGrid, Path
 
         from pf_slam_interfaces.msg import ParticleArray, ReplayStatus
 
@@ -47,6 +48,8 @@ class _Recorder:
         self.poses: list[np.ndarray] = []
         self.updates = 0
         self.map_msg = None
+        self.loops = loops  # the mapper closes loops: the final trajectory comes on pf_slam/trajectory
+        self.trajectory_msg = None
         self.replay_counts: dict[str, int] | None = None
         self.texture_msg = None
         self.texture_meta = None
@@ -66,6 +69,8 @@ class _Recorder:
         )
         node.create_subscription(ParticleArray, topics.PARTICLES_UPDATED, self._on_updated, qos.pipeline())
         node.create_subscription(OccupancyGrid, topics.MAP, self._on_map, qos.latched())
+        if loops:
+            node.create_subscription(Path, topics.TRAJECTORY, self._on_trajectory, qos.latched())
         node.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
         from std_msgs.msg import String
 
@@ -125,6 +130,17 @@ class _Recorder:
 
     def _on_map(self, msg) -> None:
         self.map_msg = msg
+
+    def _on_trajectory(self, msg) -> None:
+        from ..ros.convert import path_arrays
+
+        self.trajectory_msg = path_arrays(msg)
+
+    def final_trajectory(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The mapper's trajectory in the loop closure's final frame, ``(stamps ns, (K, 3))``, if it
+        came and covers every scan posed here; else None."""
+        t = self.trajectory_msg
+        return t if t is not None and t[0].size == len(self.poses) else None
 
     def snapshot(self, name: str, wait: bool = False) -> None:
         """Render the latest map and path to ``snapshots/<name>`` on the writer thread.

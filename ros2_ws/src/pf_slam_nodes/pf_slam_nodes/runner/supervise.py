@@ -233,7 +233,8 @@ def spin_graph(
         nodes.append(rec_node)
         ex = make_executor(executor, ctx)
         ex.add_node(rec_node)
-        rec = _Recorder(rec_node, out, scans_total, bag_duration_s, snapshot_every, progress, texture)
+        loops = bool(per_node.get("mapper", {}).get("loops.enabled", False))
+        rec = _Recorder(rec_node, out, scans_total, bag_duration_s, snapshot_every, progress, texture, loops)
         if record:
             result = ResultRecorder(
                 rec_node,
@@ -270,6 +271,7 @@ def spin_graph(
                     m is not None
                     and stamp_ns_of(m) == rec.stamps[-1]
                     and rec.node_status.get("predictor", {}).get("final", False)
+                    and (not loops or rec.final_trajectory() is not None)
                 )
             # paced replays (--rate N) may lose scans under load: once the bag is out and the
             # pipeline has been idle for drain_timeout_s, finish and report them as dropped
