@@ -5,8 +5,7 @@ import math
 
 import numpy as np
 
-from pf_slam_nodes.core.geometry import compose, relative_pose
-from pf_slam_tools.bench import backend, worlds
+from pf_slam_tools.bench import worlds
 from pf_slam_tools.sim import worlds as sim
 from pf_slam_tools.sim.indoor import distance_to_segments
 
@@ -55,25 +54,3 @@ def test_simulated_drives_close_their_loop_and_keep_off_the_walls():
         # the drive passes its start again (a loop to close)
         late = truth[len(truth) // 2 :, :2]
         assert np.hypot(late[:, 0], late[:, 1]).min() < 1.0
-
-
-def test_backend_optimiser_pulls_a_drifted_loop_closed():
-    # a 40 m square of 1 m keyframes, its odometry edges with a heading drift, one true loop edge
-    true = [np.zeros(3)]
-    for k in range(160):
-        step = np.array([1.0, 0.0, math.pi / 2 if k % 40 == 39 else 0.0])
-        true.append(compose(true[-1], step))
-    true = np.array(true)
-    meas = [relative_pose(true[k], true[k + 1]) + np.array([0.0, 0.0, 0.004]) for k in range(160)]
-    est = [np.zeros(3)]
-    for z in meas:
-        est.append(compose(est[-1], z))
-    est = np.array(est)
-    cfg = backend.LoopConfig()
-    info = np.diag([1 / 0.03**2] * 2 + [1 / 0.01**2])
-    edges = [(k, k + 1, meas[k], info, False) for k in range(160)]
-    edges.append((0, 160, relative_pose(true[0], true[160]), np.diag([1 / 0.05**2] * 2 + [1 / 0.01**2]), False))
-    opt = backend.optimise(est, edges, cfg)
-    before = np.hypot(*(est[160, :2] - true[160, :2]))
-    after = np.hypot(*(opt[160, :2] - true[160, :2]))
-    assert before > 5.0 and after < 0.2

@@ -48,11 +48,13 @@ ODOM_SIGMA_TH_PER_M = 0.005  # per metre travelled (rad/m)
 
 
 def indoor_configs(seed: int, overrides: dict | None = None) -> tuple:
-    """The configs of the default indoor profile (filter, motion, grid, correlation, resample),
-    as `pf-slam run` gives them to the predictor and the correlator; ``overrides`` a flat
-    ``{dotted name: value}`` layer on top (experiments), ``filter.seed`` = ``seed``."""
+    """The configs of the default indoor profile (filter, motion, grid, correlation, resample,
+    laser, loops), as `pf-slam run` gives them to the predictor, the correlator and the mapper;
+    ``overrides`` a flat ``{dotted name: value}`` layer on top (experiments), ``filter.seed`` =
+    ``seed``."""
     layers = [load_params(profile_file("indoor")), {"/**": {"filter.seed": int(seed), **(overrides or {})}}]
     pred, corr = node_params(layers, "predictor"), node_params(layers, "correlator")
+    mapper = node_params(layers, "mapper")
 
     def section(cls, params, prefix):
         names = {f.name: f for f in dataclasses.fields(cls)}
@@ -70,6 +72,8 @@ def indoor_configs(seed: int, overrides: dict | None = None) -> tuple:
         section(cfg.GridConfig, corr, "grid"),
         section(cfg.CorrelationConfig, corr, "correlation"),
         section(cfg.ResampleConfig, corr, "resample"),
+        section(cfg.LaserConfig, corr, "laser"),
+        section(cfg.LoopClosureConfig, mapper, "loops"),
     )
 
 
@@ -181,8 +185,11 @@ def run_drive(drive: Drive, seed: int, overrides: dict | None = None) -> tuple[n
             for k in range(len(drive.truth))
         ]
     )
+    est = slam.trajectory(np.arange(len(est), dtype=np.float64), est)  # the loop closure's final frame
     wall = time.perf_counter() - t0
-    return est, {"wall_s": wall, "scans": len(est), "corrections": slam.num_updates}
+    lc = slam.mapper.loops
+    loops = {} if lc is None else {"loops_closed": len(lc.loops), "map_renders": slam.mapper.rebuilds}
+    return est, {"wall_s": wall, "scans": len(est), "corrections": slam.num_updates, **loops}
 
 
 def bench(
