@@ -135,6 +135,19 @@ def test_match_in_a_featureless_corridor_is_ambiguous():
     assert score - rival < cfg.min_margin
 
 
+def test_query_points_far_beyond_the_reference_are_neutral():
+    """Points of the query that land far outside the reference's grid (another building wing)
+    neither index outside the search table nor change the match."""
+    rng = np.random.default_rng(3)
+    cfg = LoopClosureConfig(enabled=True, max_range_m=5.0)
+    ref = _room_points(rng)
+    far = np.stack([np.linspace(60.0, 80.0, 300), np.full(300, 60.0)], 1)
+    query = np.concatenate([_room_points(rng), far])
+    pose, _, inliers, contradictions, _ = match_submaps(query, ref, ROOM_POLY, np.zeros(3), 2.0, cfg)
+    assert np.hypot(*pose[:2]) < 0.02 and abs(pose[2]) < math.radians(0.3)
+    assert contradictions < 0.02 and inliers > 0.7
+
+
 def test_a_wall_where_the_reference_saw_free_space_contradicts_the_match():
     rng = np.random.default_rng(2)
     cfg = LoopClosureConfig(enabled=True)

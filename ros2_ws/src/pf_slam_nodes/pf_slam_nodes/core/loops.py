@@ -128,13 +128,15 @@ def match_submaps(
     yaws = guess[2] + np.arange(-ny, ny + 1) * dyaw
     k = int(math.floor(window_m / cfg.coarse_m + 1e-9))
     sh = np.arange(-k, k + 1)
-    pad = k + 1
+    # a band of 2k+1 neutral cells around the field: a point beyond it is clipped into the band's
+    # middle, so its k shifts either way read 0 (nothing seen there) and stay inside the table
+    pad = 2 * k + 1
     table = np.pad(coarse.like - coarse.free, pad)
-    wp = table.shape[1]
+    hp, wp = table.shape
     c, s = np.cos(yaws)[:, None], np.sin(yaws)[:, None]
     rot = np.stack([guess[0] + c * q[:, 0] - s * q[:, 1], guess[1] + s * q[:, 0] + c * q[:, 1]], axis=-1)
     ix, iy = coarse.cells(rot)  # (R, M)
-    base = np.clip(iy + pad, 0, table.shape[0] - 1) * wp + np.clip(ix + pad, 0, wp - 1)
+    base = np.clip(iy + pad, k, hp - 1 - k) * wp + np.clip(ix + pad, k, wp - 1 - k)
     offs = (sh[:, None] * wp + sh[None, :]).ravel()  # (dy, dx), dy-major
     flat = table.ravel()
     scores = np.stack([flat[b[None, :] + offs[:, None]].sum(axis=1) for b in base])  # (R, S)
