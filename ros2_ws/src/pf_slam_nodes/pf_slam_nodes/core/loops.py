@@ -36,8 +36,13 @@ import numpy as np
 
 from .config import LoopClosureConfig
 from .geometry import compose, relative_pose, wrap_angle
-from .posegraph import optimize
+from .posegraph import edge_errors, optimize
 from .scan import transform_points, transform_points_batch
+
+#: a new loop edge that the current solution already satisfies within this chi-square (about one
+#: sigma) is added without solving the graph again (the solve waits for one that does not, or for
+#: the next read of the corrections): revisits that agree with the filter cost nothing
+AGREES_CHI2 = 1.0
 
 
 @dataclasses.dataclass
@@ -210,6 +215,7 @@ class LoopCloser:
         self._last: np.ndarray | None = None
         self._last_attempt = -math.inf
         self._last_loop = 0.0
+        self._unsolved = False  # loop edges added since the last solve
 
     def __len__(self) -> int:
         return len(self.raw)
@@ -246,6 +252,8 @@ class LoopCloser:
     # ------------------------------------------------------------------ corrections
     def _kf_corrections(self) -> np.ndarray:
         """``(K, 3)`` per keyframe: the transform raw -> optimised (``opt (+) raw^-1``)."""
+        if self._unsolved:
+            self._solve()
         raw = np.asarray(self.raw)
         return compose(self.opt, relative_pose(raw, np.zeros(3)))
 
@@ -266,6 +274,8 @@ class LoopCloser:
         """How far (m) the keyframes' optimised poses are from where the map has their scans."""
         if not self.raw:
             return 0.0
+        if self._unsolved:
+            self._solve()
         raw = np.asarray(self.raw)
         d = self.opt[:, :2] - compose(self.mapped, raw)[:, :2]
         return float(np.hypot(d[:, 0], d[:, 1]).max())
@@ -315,10 +325,16 @@ class LoopCloser:
             return False
         self.loops.append(LoopEdge(j, k, pose, score, rival))
         self._last_loop = t[k]
+        e = edge_errors(self.opt, np.array([j]), np.array([k]), pose[None])[0][0]
+        info = np.array([cfg.loop_sigma_xy_m, cfg.loop_sigma_xy_m, cfg.loop_sigma_rad]) ** -2.0
+        if float(e @ (info * e)) <= AGREES_CHI2:
+            self._unsolved = True
+            return False
         self._solve()
         return True
 
     def _solve(self) -> None:
+        self._unsolved = False
         cfg = self.cfg
         raw = np.asarray(self.raw)
         n = raw.shape[0]
