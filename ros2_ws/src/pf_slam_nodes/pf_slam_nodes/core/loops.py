@@ -120,8 +120,9 @@ def match_submaps(
     score of a candidate ``ambiguity_m`` or more away (-1 if none)."""
     if query.shape[0] < 30 or ref.shape[0] < 30:
         return None
-    coarse = _Field(ref, ref_polys, cfg.coarse_m, max(cfg.coarse_m, 2 * cfg.sigma_m), window_m + cfg.max_range_m)
-    fine = _Field(ref, ref_polys, cfg.resolution_m, cfg.sigma_m, 1.0)
+    # the fields cover the reference (and a cell or two): a query point beyond them scores 0
+    coarse = _Field(ref, ref_polys, cfg.coarse_m, max(cfg.coarse_m, 2 * cfg.sigma_m), 2 * cfg.coarse_m)
+    fine = _Field(ref, ref_polys, cfg.resolution_m, cfg.sigma_m, 6 * cfg.sigma_m)
     q = (
         query
         if query.shape[0] <= cfg.max_points
@@ -224,16 +225,25 @@ class LoopCloser:
         """A corrected scan: its stamp (any increasing time key), the filter's pose (raw frame),
         its points and free-space polygon (:func:`scan_polygon`) in its own frame. True when
         the scan closed a loop (the optimised poses changed)."""
+        return self.observe(pose) and self.add_keyframe(stamp, pose, points, polygon)
+
+    def observe(self, pose: np.ndarray) -> bool:
+        """A corrected scan's pose (raw frame): True when it is to be a keyframe (then give it
+        to :meth:`add_keyframe`; the caller computes its points only then)."""
         cfg = self.cfg
         pose = np.asarray(pose, dtype=np.float64).reshape(3)
         if self._last is not None:
             self._travel += math.hypot(pose[0] - self._last[0], pose[1] - self._last[1])
         self._last = pose
-        if self.raw and (
-            self._travel - self.travel[-1] < cfg.keyframe_m
-            and abs(wrap_angle(pose[2] - self.raw[-1][2])) < cfg.keyframe_rad
-        ):
-            return False
+        return not self.raw or (
+            self._travel - self.travel[-1] >= cfg.keyframe_m
+            or abs(wrap_angle(pose[2] - self.raw[-1][2])) >= cfg.keyframe_rad
+        )
+
+    def add_keyframe(self, stamp: float, pose: np.ndarray, points: np.ndarray, polygon: np.ndarray) -> bool:
+        """The keyframe :meth:`observe` asked for; True when it closed a loop."""
+        cfg = self.cfg
+        pose = np.asarray(pose, dtype=np.float64).reshape(3)
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
         pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= cfg.max_range_m]
         k = len(self.raw)

@@ -48,13 +48,13 @@ def optimize(
     info: np.ndarray,
     robust: np.ndarray,
     cauchy: float = 1.0,
-    iterations: int = 20,
-    tol: float = 1e-6,
+    iterations: int = 15,
+    tol: float = 1e-4,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Solve the pose graph from ``x0`` ``(N, 3)``; edges ``i, j`` ``(E,)`` int, ``z`` ``(E, 3)``,
     ``info`` ``(E, 3, 3)``, ``robust`` ``(E,)`` bool (Cauchy kernel with scale ``cauchy`` on the
-    chi-square). Node 0 stays fixed. Returns the poses and each edge's chi-square
-    ``e^T info e`` at the solution."""
+    chi-square). Node 0 stays fixed; the iterations stop once no pose moves by more than ``tol``
+    (m, rad). Returns the poses and each edge's chi-square ``e^T info e`` at the solution."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.linalg import spsolve
 

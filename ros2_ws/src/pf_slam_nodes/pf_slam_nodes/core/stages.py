@@ -520,30 +520,34 @@ class MappingStage:
         if self._pending_frame is not None:  # the set this pose came from followed the last re-rendering
             self.frame, self._pending_frame = self._pending_frame, None
             self.frames.append((float(key), self.frame.copy()))
-        patch = self._integrate(pose, ranges, angles, range_min, range_max, extrinsic)
+        planar = scan_in_base(
+            ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset, range_min, range_max, extrinsic
+        )
+        patch = self._integrate(pose, planar, range_min, range_max)
         self.clock.add("map", t0)
         if self.loops is not None:
             t0 = time.perf_counter()
-            patch = self._close_loops(float(key), pose, (ranges, angles, range_min, range_max, extrinsic), patch)
+            patch = self._close_loops(float(key), pose, planar, range_min, range_max, patch)
             self.clock.add("loops", t0)
         return patch
 
-    def _close_loops(self, key: float, pose: np.ndarray, scan: tuple, patch: MapPatch) -> MapPatch:
+    def _close_loops(self, key: float, pose: np.ndarray, planar: tuple, rmin: float, rmax: float, patch: MapPatch):
+        """Keep the scan (as the planar sensor saw it, for a re-rendering), hand a keyframe to the
+        loop closure, and re-render the map when its solution moved it (the patch then says so)."""
         raw = compose(self.frame, np.asarray(pose, dtype=np.float64).reshape(3))
-        angles = np.asarray(scan[1], dtype=np.float64)
-        if self._scans and np.array_equal(self._scans[-1][2][1], angles):
-            angles = self._scans[-1][2][1]  # shared: the beams are the same scan after scan
-        kept = (np.asarray(scan[0], dtype=np.float32).copy(), angles.copy() if angles is scan[1] else angles)
-        self._scans.append((key, raw, (*kept, *scan[2:])))
-        r, a, offset = scan_in_base(
-            scan[0], scan[1], self.laser_cfg, self.filter_cfg.sensor_offset, scan[2], scan[3], scan[4]
-        )
-        reach = min(self.loop_cfg.max_range_m, scan[3])
-        pts = transform_points(scan_to_points(r, a, max(scan[2], 1e-6), reach), offset)
+        r, a, offset = planar
+        last = self._scans[-1][2][1] if self._scans else None
+        kept_a = last if last is not None and np.array_equal(last, a.astype(np.float32)) else a.astype(np.float32)
+        self._scans.append((key, raw, (r.astype(np.float32), kept_a, offset, rmin, rmax)))
+        if not self.loops.observe(raw):  # not a keyframe: nothing more to do
+            return patch
+        reach = min(self.loop_cfg.max_range_m, rmax)
+        pts = transform_points(scan_to_points(r, a, max(rmin, 1e-6), reach), offset)
         ok = ~np.isnan(r)
         ends = np.where(np.isfinite(r[ok]) & (r[ok] <= reach), r[ok], reach)
         ends = transform_points(np.stack([ends * np.cos(a[ok]), ends * np.sin(a[ok])], axis=1), offset)
-        if not self.loops.add(key, raw, pts, scan_polygon(offset[:2], ends, max(1, ends.shape[0] // 180))):
+        poly = scan_polygon(offset[:2], ends, max(1, ends.shape[0] // 180))
+        if not self.loops.add_keyframe(key, raw, pts, poly):
             return patch
         if self.loops.map_shift() <= self.loop_cfg.rebuild_m:
             return patch
@@ -557,8 +561,8 @@ class MappingStage:
         """The map anew from every kept scan at its raw pose moved by its correction."""
         poses = compose(corrections, np.array([raw for _, raw, _ in self._scans]))
         self.grid = self._occ = None
-        for pose, (_, _, scan) in zip(poses, self._scans):
-            self._integrate(pose, *scan)
+        for pose, (_, _, (r, a, offset, rmin, rmax)) in zip(poses, self._scans):
+            self._integrate(pose, (r, a, offset), rmin, rmax)
         self.pose = poses[-1].copy()
         self.rebuilds += 1
 
@@ -585,23 +589,15 @@ class MappingStage:
         raw = compose(frames[np.searchsorted(starts, k, side="right") - 1], p)
         return compose(self.loops.corrections(k), raw)
 
-    def _integrate(
-        self,
-        pose: np.ndarray,
-        ranges: np.ndarray,
-        angles: np.ndarray,
-        range_min: float,
-        range_max: float,
-        extrinsic: np.ndarray | None = None,
-    ) -> MapPatch:
+    def _integrate(self, pose: np.ndarray, planar: tuple, range_min: float, range_max: float) -> MapPatch:
+        """A scan as the planar sensor sees it (:func:`scan_in_base`: ranges, angles, offset) into
+        the grid at ``pose``; the patch of the cells it touched."""
         pose = np.asarray(pose, dtype=np.float64).reshape(3)
         if self.grid is None:
             self.grid = LogOddsGrid(self.grid_cfg, center_xy=pose[:2])
             self._occ = np.full(self.grid.log_odds.shape, -1, dtype=np.int8)  # = occupancy() of an empty grid
         g = self.grid
-        ranges, angles, offset = scan_in_base(
-            ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset, range_min, range_max, extrinsic
-        )
+        ranges, angles, offset = planar
         usable = sparse_scan_range(ranges, g.cfg.range_max_usable_m, range_max, g.cfg.min_return_fraction)
         g.integrate_scan(pose, ranges, angles, offset, range_min, range_max, usable)
         if g.last_growth is not None:  # the grid grew by whole tiles: so does its occupancy
