@@ -131,13 +131,15 @@ def test_car_encoders_fog_stream_loop_equals_graph(tmp_path, ros_domain):
 
 
 def test_loop_closure_stream_loop_equals_graph(tmp_path, ros_domain):
-    """loops.enabled with a re-rendering at every closed loop (rebuild_m 0): the mapper's frame
-    change reaches the correlator (the marker, then the whole map) exactly where the loop's
-    does; the poses as published are the same, and so is the final trajectory."""
+    """loops.enabled with a re-rendering at every closed loop (rebuild_m 0; loop edges trusted
+    to a millimetre, so every one disagrees enough with the chain to be solved at once): the
+    mapper's frame change reaches the correlator (the marker, then the whole map) exactly where
+    the loop's does; the poses as published are the same, and so is the final trajectory."""
     params = tmp_path / "sample_loops.yaml"
     params.write_text(
         (CONFIG / "sim_indoor.yaml").read_text()
         + "mapper:\n  ros__parameters:\n    loops:\n      enabled: true\n      rebuild_m: 0.0\n"
+        + "      loop_sigma_xy_m: 0.001\n      loop_sigma_rad: 0.0002\n"
     )
     bag = ROOT / "bags" / "sample_indoor"
     slam, stream = _stream_loop(bag, params)
