@@ -371,6 +371,16 @@ def run_cli(args: Any, log: Callable[[str], None] = print) -> int:
         f"{s['scans_processed']} scans ({s['scans_corrected']} corrected), {dropped} dropped, "
         f"wall {s['wall_time_s']:.1f} s, RTF {s['real_time_factor']}x; outputs in {args.out}"
     )
+    if lc := s.get("loops"):
+        frames = (
+            "; trajectory.tum in the final frame, trajectory_online.tum as published"
+            if (Path(args.out) / "trajectory_online.tum").is_file()
+            else ""
+        )
+        log(
+            f"loop closure: {lc['closed']} loops closed over {lc['keyframes']} keyframes ({lc['rejected']} matches "
+            f"refused, {lc['dropped']} dropped by the graph), map re-rendered {lc['map_renders']}x{frames}"
+        )
     if s["scans_dropped"]:
         log(
             f"warning: {s['scans_dropped']} of {s['scans_published']} scans published were dropped: the graph "
