@@ -18,24 +18,10 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
-from ..core import config as cfg
 from ..runner.memory import keep_freed_memory
+from .declared import CONFIG_SECTIONS
 
 T = TypeVar("T")
-
-#: Dotted parameter prefix -> core config class (kiss-icp style: `grid.resolution_m`).
-CONFIG_SECTIONS: dict[str, type] = {
-    "filter": cfg.FilterConfig,
-    "motion": cfg.OdometryMotionConfig,
-    "diff_drive": cfg.DiffDriveConfig,
-    "wheels": cfg.WheelsConfig,
-    "grid": cfg.GridConfig,
-    "correlation": cfg.CorrelationConfig,
-    "resample": cfg.ResampleConfig,
-    "laser": cfg.LaserConfig,
-    "localization": cfg.LocalizationConfig,
-    "loops": cfg.LoopClosureConfig,
-}
 
 
 #: Descriptions of the plain (non-config) node parameters: they go into each parameter's

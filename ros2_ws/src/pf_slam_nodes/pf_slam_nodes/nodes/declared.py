@@ -14,6 +14,23 @@ import difflib
 import re
 from typing import Any
 
+from ..core import config as cfg
+
+#: Dotted parameter prefix -> core config class (kiss-icp style: `grid.resolution_m`); the
+#: texture node's section is section_class's (its config lives with OpenCV's code)
+CONFIG_SECTIONS: dict[str, type] = {
+    "filter": cfg.FilterConfig,
+    "motion": cfg.OdometryMotionConfig,
+    "diff_drive": cfg.DiffDriveConfig,
+    "wheels": cfg.WheelsConfig,
+    "grid": cfg.GridConfig,
+    "correlation": cfg.CorrelationConfig,
+    "resample": cfg.ResampleConfig,
+    "laser": cfg.LaserConfig,
+    "localization": cfg.LocalizationConfig,
+    "loops": cfg.LoopClosureConfig,
+}
+
 #: Config sections each node declares (``<section>.<field>`` for every field of the class).
 NODE_SECTIONS: dict[str, tuple[str, ...]] = {
     "bag_replay": (),
@@ -103,20 +120,7 @@ def section_class(section: str) -> type:
         from ..core.texture import TextureConfig
 
         return TextureConfig
-    from ..core import config as cfg
-
-    return {
-        "filter": cfg.FilterConfig,
-        "motion": cfg.OdometryMotionConfig,
-        "diff_drive": cfg.DiffDriveConfig,
-        "wheels": cfg.WheelsConfig,
-        "grid": cfg.GridConfig,
-        "correlation": cfg.CorrelationConfig,
-        "resample": cfg.ResampleConfig,
-        "laser": cfg.LaserConfig,
-        "localization": cfg.LocalizationConfig,
-        "loops": cfg.LoopClosureConfig,
-    }[section]
+    return CONFIG_SECTIONS[section]
 
 
 def _field_default(f: dataclasses.Field) -> Any:
