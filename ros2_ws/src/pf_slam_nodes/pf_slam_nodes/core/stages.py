@@ -536,8 +536,9 @@ class MappingStage:
         loop closure, and re-render the map when its solution moved it (the patch then says so)."""
         raw = compose(self.frame, np.asarray(pose, dtype=np.float64).reshape(3))
         r, a, offset = planar
+        a32 = a.astype(np.float32)
         last = self._scans[-1][2][1] if self._scans else None
-        kept_a = last if last is not None and np.array_equal(last, a.astype(np.float32)) else a.astype(np.float32)
+        kept_a = last if last is not None and np.array_equal(last, a32) else a32  # share a repeated beam layout
         self._scans.append((key, raw, (r.astype(np.float32), kept_a, offset, rmin, rmax)))
         if not self.loops.observe(raw):  # not a keyframe: nothing more to do
             return patch
@@ -551,20 +552,26 @@ class MappingStage:
             return patch
         if self.loops.map_shift() <= self.loop_cfg.rebuild_m:
             return patch
-        corr = self.loops.mark_mapped()
+        corr = self._render()
         move = compose(corr, self.frame)  # the filter's frame -> the optimised one
         self._pending_frame = relative_pose(corr, np.zeros(3))  # optimised -> raw
-        self._render(self.loops.corrections(np.array([k for k, _, _ in self._scans])))
         return MapPatch(self._occ.copy(), self.grid.resolution, self.grid.origin.copy(), move)
 
-    def _render(self, corrections: np.ndarray) -> None:
-        """The map anew from every kept scan at its raw pose moved by its correction."""
-        poses = compose(corrections, np.array([raw for _, raw, _ in self._scans]))
+    def _render(self) -> np.ndarray:
+        """The map anew from every kept scan at its raw pose moved by its correction (the loop
+        closure's current solution, marked as mapped); returns the correction of the scans mapped
+        from now on (:meth:`LoopCloser.mark_mapped`)."""
+        corr = self.loops.mark_mapped()
+        poses = compose(
+            self.loops.corrections(np.array([k for k, _, _ in self._scans])),
+            np.array([raw for _, raw, _ in self._scans]),
+        )
         self.grid = self._occ = None
         for pose, (_, _, (r, a, offset, rmin, rmax)) in zip(poses, self._scans):
             self._integrate(pose, (r, a, offset), rmin, rmax)
         self.pose = poses[-1].copy()
         self.rebuilds += 1
+        return corr
 
     def finish(self) -> bool:
         """End of the run: the map re-rendered with the final corrections if any keyframe moved
@@ -572,8 +579,7 @@ class MappingStage:
         if self.loops is None or not self._scans or self.loops.map_shift() <= 0.5 * self.grid_cfg.resolution_m:
             return False
         t0 = time.perf_counter()
-        self.loops.mark_mapped()
-        self._render(self.loops.corrections(np.array([k for k, _, _ in self._scans])))
+        self._render()
         self.clock.add("loops", t0)
         return True
 

@@ -382,8 +382,7 @@ class Mapper(Node):
 
     def _path_corrected(self) -> tuple[np.ndarray, np.ndarray]:
         """/path's poses (the corrected scans') in the final frame."""
-        path = Path(poses=self.path)
-        stamps, poses = convert.path_arrays(path)
+        stamps, poses = convert.path_arrays(self.path)
         return stamps, self.stage.corrected(stamps / 1e9, poses)
 
     def publish_map(self) -> None:

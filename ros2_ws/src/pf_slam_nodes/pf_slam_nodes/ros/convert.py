@@ -103,9 +103,10 @@ def path_msg(stamps_ns: np.ndarray, poses: np.ndarray, stamp_ns: int, frame_id: 
     return msg
 
 
-def path_arrays(msg) -> tuple[np.ndarray, np.ndarray]:
-    """A nav_msgs/Path's stamps (ns, ``(K,)``) and poses ``(K, 3)``."""
-    stamps = np.array([stamp_to_ns(p.header.stamp) for p in msg.poses], dtype=np.int64)
+def path_arrays(msgs) -> tuple[np.ndarray, np.ndarray]:
+    """The stamps (ns, ``(K,)``) and poses ``(K, 3)`` of PoseStamped messages (a nav_msgs/Path's
+    ``poses``)."""
+    stamps = np.array([stamp_to_ns(p.header.stamp) for p in msgs], dtype=np.int64)
     poses = np.array(
         [
             (
@@ -113,7 +114,7 @@ def path_arrays(msg) -> tuple[np.ndarray, np.ndarray]:
                 p.pose.position.y,
                 quat_to_yaw(p.pose.orientation.x, p.pose.orientation.y, p.pose.orientation.z, p.pose.orientation.w),
             )
-            for p in msg.poses
+            for p in msgs
         ],
         dtype=np.float64,
     ).reshape(-1, 3)

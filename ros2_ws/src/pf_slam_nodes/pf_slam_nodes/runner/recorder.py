@@ -134,7 +134,7 @@ class _Recorder:
     def _on_trajectory(self, msg) -> None:
         from ..ros.convert import path_arrays
 
-        self.trajectory_msg = path_arrays(msg)
+        self.trajectory_msg = path_arrays(msg.poses)
 
     def final_trajectory(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The mapper's trajectory in the loop closure's final frame, ``(stamps ns, (K, 3))``, if it
