@@ -37,6 +37,11 @@ def _check_pos(name: str, value: Any) -> None:
         raise ValueError(f"{name} must be > 0, got {value!r}")
 
 
+def _check_unit(name: str, value: Any) -> None:
+    if not 0.0 <= value <= 1.0:
+        raise ValueError(f"{name} must be in [0, 1], got {value!r}")
+
+
 def _check_int(name: str, value: Any, minimum: int) -> None:
     if isinstance(value, bool) or not isinstance(value, int):
         raise ValueError(f"{name} must be an int, got {value!r}")
@@ -288,8 +293,7 @@ class GridConfig(_ConfigBase):
         if self.clip_max <= 0:
             raise ValueError(f"clip_max must be > 0, got {self.clip_max!r}")
         _check_pos("range_max_usable_m", self.range_max_usable_m)
-        if not 0.0 <= self.min_return_fraction <= 1.0:
-            raise ValueError(f"min_return_fraction must be in [0, 1], got {self.min_return_fraction!r}")
+        _check_unit("min_return_fraction", self.min_return_fraction)
         _check_nonneg("graze_margin_m", self.graze_margin_m)
         _check_nonneg("surface_fill_m", self.surface_fill_m)
         if self.size_x_m / self.resolution_m > 50000 or self.size_y_m / self.resolution_m > 50000:
@@ -425,9 +429,7 @@ class CorrelationConfig(_ConfigBase):
         _check_int("odom_scale_min_age", self.odom_scale_min_age, 1)
         _check_int("odom_scale_min_points", self.odom_scale_min_points, 1)
         for name in ("gain_xy", "gain_yaw"):
-            v = getattr(self, name)
-            if not 0.0 <= v <= 1.0:
-                raise ValueError(f"{name} must be in [0, 1], got {v!r}")
+            _check_unit(name, getattr(self, name))
         if not isinstance(self.skip_unknown, bool):
             raise ValueError(f"skip_unknown must be a bool, got {self.skip_unknown!r}")
         _check_nonneg("prior_sigma_xy_m", self.prior_sigma_xy_m)
@@ -595,8 +597,7 @@ class LaserConfig(_ConfigBase):
         if not isinstance(self.dynamic_frame, str):
             raise ValueError(f"dynamic_frame must be a frame name (string), got {self.dynamic_frame!r}")
         _check_finite("min_kept_fraction", self.min_kept_fraction)
-        if not 0.0 <= self.min_kept_fraction <= 1.0:
-            raise ValueError(f"min_kept_fraction must be in [0, 1], got {self.min_kept_fraction!r}")
+        _check_unit("min_kept_fraction", self.min_kept_fraction)
 
     @property
     def is_3d(self) -> bool:
@@ -769,23 +770,21 @@ class LoopClosureConfig(_ConfigBase):
     def __post_init__(self) -> None:
         if not isinstance(self.enabled, bool):
             raise ValueError(f"enabled must be a bool, got {self.enabled!r}")
-        for name in ("keyframe_m", "keyframe_rad", "submap_m", "loop_every_m", "window_max_m", "window_rad"):
+        for name in (
+            *("keyframe_m", "keyframe_rad", "submap_m", "loop_every_m", "window_max_m", "window_rad"),
+            *("resolution_m", "coarse_m", "sigma_m", "max_range_m", "ambiguity_m", "cauchy", "max_chi2"),
+            *("seq_sigma_xy_m", "seq_sigma_rad", "loop_sigma_xy_m", "loop_sigma_rad"),
+        ):
             _check_pos(name, getattr(self, name))
-        for name in ("resolution_m", "coarse_m", "sigma_m", "max_range_m", "ambiguity_m", "cauchy", "max_chi2"):
-            _check_pos(name, getattr(self, name))
-        for name in ("min_loop_travel_m", "window_min_m", "window_per_m", "min_margin", "rebuild_m"):
+        for name in (
+            *("min_loop_travel_m", "window_min_m", "window_per_m", "min_margin", "rebuild_m"),
+            *("seq_sigma_xy_per_m", "seq_sigma_lateral_per_m", "seq_sigma_rad_per_m"),
+        ):
             _check_nonneg(name, getattr(self, name))
-        for name in ("seq_sigma_xy_m", "seq_sigma_rad", "loop_sigma_xy_m", "loop_sigma_rad"):
-            _check_pos(name, getattr(self, name))
-        _check_nonneg("seq_sigma_xy_per_m", self.seq_sigma_xy_per_m)
-        _check_nonneg("seq_sigma_lateral_per_m", self.seq_sigma_lateral_per_m)
-        _check_nonneg("seq_sigma_rad_per_m", self.seq_sigma_rad_per_m)
         _check_int("max_points", self.max_points, 30)
         _check_int("candidates", self.candidates, 1)
         for name in ("min_inliers", "max_contradictions"):
-            v = getattr(self, name)
-            _check_finite(name, v)
-            if not 0.0 <= v <= 1.0:
-                raise ValueError(f"{name} must be in [0, 1], got {v!r}")
+            _check_finite(name, getattr(self, name))
+            _check_unit(name, getattr(self, name))
         if self.window_min_m > self.window_max_m:
             raise ValueError(f"window_min_m ({self.window_min_m!r}) must be <= window_max_m ({self.window_max_m!r})")
