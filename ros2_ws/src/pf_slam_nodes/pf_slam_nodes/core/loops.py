@@ -7,7 +7,8 @@ graph of keyframes (a corrected scan every ``keyframe_m`` of travel), chained by
 own relative poses, and adds a loop edge where a keyframe's recent surroundings (the scans of
 the last ``submap_m`` of travel, as one local map in its frame) match the surroundings of an
 earlier keyframe near it (the scans within ``submap_m`` of travel around that one). The graph
-is solved after every accepted loop (core/posegraph.py); any pose of the run then moves with
+is solved (core/posegraph.py) when an accepted loop edge disagrees with the current solution, or
+before its corrections are next read (:data:`AGREES_CHI2`); any pose of the run then moves with
 the correction of the keyframes around it in time.
 
 A loop match must be exact and unique to be kept. It is searched exhaustively on a coarse
