@@ -49,7 +49,7 @@ class _Recorder:
         self.updates = 0
         self.map_msg = None
         self.loops = loops  # the mapper closes loops: the final trajectory comes on pf_slam/trajectory
-        self.trajectory_msg = None
+        self._final: tuple[np.ndarray, np.ndarray] | None = None  # pf_slam/trajectory: (stamps ns, poses)
         self.replay_counts: dict[str, int] | None = None
         self.texture_msg = None
         self.texture_meta = None
@@ -134,12 +134,12 @@ class _Recorder:
     def _on_trajectory(self, msg) -> None:
         from ..ros.convert import path_arrays
 
-        self.trajectory_msg = path_arrays(msg.poses)
+        self._final = path_arrays(msg.poses)
 
     def final_trajectory(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The mapper's trajectory in the loop closure's final frame, ``(stamps ns, (K, 3))``, if it
         came and covers every scan posed here; else None."""
-        t = self.trajectory_msg
+        t = self._final
         return t if t is not None and t[0].size == len(self.poses) else None
 
     def snapshot(self, name: str, wait: bool = False) -> None:
