@@ -135,6 +135,38 @@ def test_pose_array_writer_round_trips_through_rclpy(frame, n):
         )
 
 
+@pytest.mark.parametrize("frame", ["", "m", "map", "mapx", "a_longer_frame"])
+@pytest.mark.parametrize("n", [0, 1, 2, 7])
+def test_path_bytes_and_reader_agree_with_rclpy(frame, n):
+    from nav_msgs.msg import Path
+
+    rng = np.random.default_rng(n + len(frame))
+    stamps = rng.integers(-2_000_000_000, 2_000_000_000_000_000_000, n)
+    poses = rng.normal(size=(n, 3)) * [50.0, 50.0, 3.0]
+    ref = Path(
+        header=convert.pose_stamped(np.zeros(3), 1_700_000_000_123_456_789, frame).header,
+        poses=[convert.pose_stamped(p, int(t), frame) for t, p in zip(stamps, poses)],
+    )
+    raw = cdr.path_bytes(stamps, poses, 1_700_000_000_123_456_789, frame)
+    assert deserialize_message(raw, Path) == ref  # every field (the bytes differ only in padding)
+    assert len(raw) == len(serialize_message(ref))
+    t, p = cdr.path_xy_yaw(serialize_message(ref))
+    assert t.tolist() == stamps.tolist() and p.shape == (n, 3)
+    assert np.allclose(p[:, :2], poses[:, :2], atol=0) and np.allclose(np.cos(p[:, 2] - poses[:, 2]), 1.0)
+
+
+def test_path_reader_takes_mixed_frame_ids_pose_by_pose():
+    from nav_msgs.msg import Path
+
+    ref = Path(
+        poses=[convert.pose_stamped(np.array([k, -k, 0.1 * k]), k, f) for k, f in enumerate("a ab abc a".split())]
+    )
+    t, p = cdr.path_xy_yaw(serialize_message(ref))
+    assert t.tolist() == [0, 1, 2, 3] and np.allclose(p, [[k, -k, 0.1 * k] for k in range(4)])
+    with pytest.raises(ValueError, match="nav_msgs/Path"):
+        cdr.path_xy_yaw(serialize_message(ref)[:-8])
+
+
 def test_clock_bytes_are_a_clock_message():
     from rosgraph_msgs.msg import Clock
 

@@ -86,6 +86,13 @@ class PoseLog:
     def arrays(self) -> tuple[np.ndarray, np.ndarray]:
         return self._t[: self._n].copy(), self._p[: self._n].copy()
 
+    def set(self, stamps_ns: np.ndarray, poses: np.ndarray) -> None:
+        """Replace the log's contents."""
+        n = len(stamps_ns)
+        self._t = np.empty(max(n, 1024), np.int64)
+        self._p = np.empty((max(n, 1024), 3))
+        self._t[:n], self._p[:n], self._n = stamps_ns, poses, n
+
     def drop_before(self, stamp_ns: int) -> None:
         keep = self._t[: self._n] >= stamp_ns
         k = int(keep.sum())
@@ -126,7 +133,7 @@ class Mapper(Node):
         self.last_index = -1
         self.total: int | None = None
         self.last_stamp = 0
-        self.path: list[PoseStamped] = []
+        self.path = PoseLog()  # /path: the corrected scans' poses
         self.pub_grid = self.create_publisher(OccupancyGrid, topics.GRID, qos.pipeline(10))
         self.pub_map = self.create_publisher(OccupancyGrid, topics.MAP, qos.latched())
         self.pub_meta = self.create_publisher(MapMetaData, topics.MAP_METADATA, qos.latched())
@@ -267,7 +274,7 @@ class Mapper(Node):
         self.reset_pending = False
         self.stage.grid = self.stage._occ = self.stage.pose = None
         self._warned_bound = False
-        self.path.clear()
+        self.path.set(np.zeros(0, np.int64), np.zeros((0, 3)))
         self.trajectory.drop_before(stamp)  # kept from this scan on
         self.trajectory_from = stamp
         marker = convert.grid_to_msg(np.zeros((0, 0), np.int8), 0.0, (0.0, 0.0), stamp, self.map_frame)
@@ -323,7 +330,7 @@ class Mapper(Node):
             self.pub_tf.publish(
                 TFMessage(transforms=[convert.transform(self.map_frame, self.odom_frame, map_to_odom, stamp)])
             )
-            self.path.append(convert.pose_stamped(pose, stamp, self.map_frame))
+            self.path.append(stamp, pose)
             self.last_index = pa.scan_index
             self.last_stamp = stamp
         self._maybe_finish()
@@ -370,7 +377,7 @@ class Mapper(Node):
             if not self.localize and self.stage.finish():
                 self.get_logger().info("end of the run: map re-rendered from the final loop-closure solution")
             if self.stage.loops is not None:
-                self.path = [convert.pose_stamped(p, s, self.map_frame) for s, p in zip(*self._path_corrected())]
+                self.path.set(*self._path_corrected())
             self.publish_map()
             self.publish_status()
             self.final_map_sent, self.scans_total, self.total = True, self.total, None  # the final map once
@@ -378,11 +385,11 @@ class Mapper(Node):
             if self.poses_seen >= self.scans_total:  # every scan's pose is here
                 self.final_trajectory_sent = True
                 stamps, poses = self.corrected_trajectory()
-                self.pub_trajectory.publish(convert.path_msg(stamps, poses, self.last_stamp, self.map_frame))
+                self.pub_trajectory.publish(cdr.path_bytes(stamps, poses, self.last_stamp, self.map_frame))
 
     def _path_corrected(self) -> tuple[np.ndarray, np.ndarray]:
         """/path's poses (the corrected scans') in the final frame."""
-        stamps, poses = convert.path_arrays(self.path)
+        stamps, poses = self.path.arrays()
         return stamps, self.stage.corrected(stamps / 1e9, poses)
 
     def publish_map(self) -> None:
@@ -398,11 +405,7 @@ class Mapper(Node):
             msg = convert.grid_to_msg(trinary(occ, *self.thresholds), res, origin, self.last_stamp, self.map_frame)
         self.pub_map.publish(msg)
         self.pub_meta.publish(msg.info)
-        path = Path()
-        path.header.stamp = convert.ns_to_stamp(self.last_stamp)
-        path.header.frame_id = self.map_frame
-        path.poses = self.path
-        self.pub_path.publish(path)
+        self.pub_path.publish(cdr.path_bytes(*self.path.arrays(), self.last_stamp, self.map_frame))
 
 
 def main(args: list[str] | None = None) -> int:

@@ -15,6 +15,7 @@ tests compare each against rclpy's own (de)serialization.
 
 from __future__ import annotations
 
+import math
 import struct
 
 import numpy as np
@@ -208,6 +209,94 @@ def _pose_xy_yaw(r: CdrReader, raw: bytes) -> np.ndarray:
     r._need(56)
     x, y, _z, qx, qy, qz, qw = struct.unpack_from(r.end + "7d", raw, r.pos)
     return np.array([x, y, float(quat_to_yaw(qx, qy, qz, qw))])
+
+
+def _string_bytes(s: str) -> bytes:
+    b = s.encode() + b"\0"
+    return struct.pack("<I", len(b)) + b
+
+
+def _pose_records(stamps_ns: np.ndarray, poses: np.ndarray, frame: bytes, offset: int) -> bytes:
+    """PoseStamped records (the stamp, ``frame`` = the frame_id's length and bytes, the pose's
+    seven doubles) laid out from payload offset ``offset`` (a multiple of 4), built as one array:
+    the caller passes records that all start at the same offset modulo 8."""
+    n = stamps_ns.size
+    pad = (-(offset + 8 + len(frame))) % 8
+    size = 8 + len(frame) + pad + 56
+    rec = np.zeros((n, size), np.uint8)
+    rec[:, 0:4] = np.floor_divide(stamps_ns, 1_000_000_000).astype("<i4").view(np.uint8).reshape(n, 4)
+    rec[:, 4:8] = np.remainder(stamps_ns, 1_000_000_000).astype("<u4").view(np.uint8).reshape(n, 4)
+    rec[:, 8 : 8 + len(frame)] = np.frombuffer(frame, np.uint8)
+    half = [0.5 * float(y) for y in poses[:, 2]]  # yaw_to_quat's math.sin / math.cos, bit for bit
+    vals = np.zeros((n, 7))
+    vals[:, 0], vals[:, 1] = poses[:, 0], poses[:, 1]
+    vals[:, 5] = [math.sin(h) for h in half]
+    vals[:, 6] = [math.cos(h) for h in half]
+    rec[:, size - 56 :] = vals.astype("<f8").view(np.uint8).reshape(n, 56)
+    return rec.tobytes()
+
+
+def path_bytes(stamps_ns: np.ndarray, poses: np.ndarray, stamp_ns: int, frame_id: str) -> bytes:
+    """nav_msgs/Path (little-endian CDR) of planar poses ``(K, 3)`` at ``stamps_ns`` (``(K,)``),
+    every pose and the path in ``frame_id``, the path stamped ``stamp_ns``: the same bytes as
+    rclpy's serialization of the message, built without K PoseStamped objects (the final
+    trajectory of a car drive has 30 000)."""
+    t = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
+    p = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+    if t.size != p.shape[0]:
+        raise ValueError(f"nav_msgs/Path: {t.size} stamps but {p.shape[0]} poses")
+    frame = _string_bytes(frame_id)
+    head = _STAMP.pack(stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000) + frame
+    head += b"\0" * ((-len(head)) % 4) + struct.pack("<I", t.size)
+    if t.size == 0:
+        return _LITTLE_ENDIAN + head
+    # every record ends 8-aligned: the first has its own padding, the others all the same
+    return _LITTLE_ENDIAN + head + _pose_records(t[:1], p[:1], frame, len(head)) + _pose_records(t[1:], p[1:], frame, 0)
+
+
+def path_xy_yaw(raw: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """nav_msgs/Path bytes -> the poses' stamps (ns, ``(K,)``) and ``[x, y, yaw]`` ``(K, 3)``.
+
+    After the first pose, the records are read as one array when they all have the first
+    one's frame_id length (as :func:`path_bytes` writes them); otherwise pose by pose."""
+    r = CdrReader(raw, "nav_msgs/Path")
+    r.header()
+    k = r.u32()
+    stamps = np.empty(k, np.int64)
+    vals = np.empty((k, 7))
+
+    def record(i: int) -> int:
+        stamps[i] = r.stamp_ns()
+        n = r.u32()
+        r._need(n)
+        r.pos += n
+        r._align(8)
+        r._need(56)
+        vals[i] = struct.unpack_from(r.end + "7d", raw, r.pos)
+        r.pos += 56
+        return n
+
+    i = 0
+    if k:
+        frame_len = record(0)
+        i = 1
+        n, size = k - 1, 12 + frame_len + (-(12 + frame_len)) % 8 + 56
+        # after the first record the payload offset is 8-aligned: every further record is `size` long
+        if n and r.little and (r.pos - _HDR) % 8 == 0 and len(raw) - r.pos >= n * size:
+            rec = np.frombuffer(raw, np.uint8, count=n * size, offset=r.pos).reshape(n, size)
+
+            def column(lo: int, width: int, dtype: str) -> np.ndarray:
+                return np.ascontiguousarray(rec[:, lo : lo + width]).view(dtype)
+
+            if np.all(column(8, 4, "<u4") == frame_len):
+                stamps[1:] = column(0, 4, "<i4")[:, 0].astype(np.int64) * 1_000_000_000 + column(4, 4, "<u4")[:, 0]
+                vals[1:] = column(size - 56, 56, "<f8")
+                i = k
+    while i < k:
+        record(i)
+        i += 1
+    yaw = quat_to_yaw(vals[:, 3], vals[:, 4], vals[:, 5], vals[:, 6])
+    return stamps, np.column_stack([vals[:, 0], vals[:, 1], yaw])
 
 
 def clock_bytes(stamp_ns: int) -> bytes:

@@ -92,35 +92,6 @@ def pose_stamped(pose: np.ndarray, stamp_ns: int, frame_id: str) -> PoseStamped:
     return msg
 
 
-def path_msg(stamps_ns: np.ndarray, poses: np.ndarray, stamp_ns: int, frame_id: str):
-    """nav_msgs/Path of ``(K, 3)`` poses at ``stamps_ns`` (``(K,)``), the path stamped ``stamp_ns``."""
-    from nav_msgs.msg import Path
-
-    msg = Path()
-    msg.header.stamp = ns_to_stamp(int(stamp_ns))
-    msg.header.frame_id = frame_id
-    msg.poses = [pose_stamped(p, int(t), frame_id) for t, p in zip(stamps_ns, poses)]
-    return msg
-
-
-def path_arrays(msgs) -> tuple[np.ndarray, np.ndarray]:
-    """The stamps (ns, ``(K,)``) and poses ``(K, 3)`` of PoseStamped messages (a nav_msgs/Path's
-    ``poses``)."""
-    stamps = np.array([stamp_to_ns(p.header.stamp) for p in msgs], dtype=np.int64)
-    poses = np.array(
-        [
-            (
-                p.pose.position.x,
-                p.pose.position.y,
-                quat_to_yaw(p.pose.orientation.x, p.pose.orientation.y, p.pose.orientation.z, p.pose.orientation.w),
-            )
-            for p in msgs
-        ],
-        dtype=np.float64,
-    ).reshape(-1, 3)
-    return stamps, poses
-
-
 def transform(parent: str, child: str, pose: np.ndarray, stamp_ns: int) -> TransformStamped:
     t = TransformStamped()
     t.header.stamp = ns_to_stamp(stamp_ns)
