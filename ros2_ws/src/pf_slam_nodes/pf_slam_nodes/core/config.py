@@ -391,6 +391,14 @@ class CorrelationConfig(_ConfigBase):
         at least this many corrections ago.
     odom_scale_min_points : int
         correlation.odom_scale: fewer such points: that correction measures nothing.
+    shadow_jump_m : float
+        Beams on the far side of an occluding edge are not matched: a beam whose neighbour within
+        ``shadow_beams`` beams is closer by more than this (m). Such a point lies where the
+        background comes out from behind the edge, a boundary that moves with the viewpoint
+        (the map there was seen from elsewhere, or not at all), and on a real laser it is often a
+        mixed return between the two surfaces. 0 disables the rule. The mapper still maps them.
+    shadow_beams : int
+        correlation.shadow_jump_m: how many beams on each side of a beam are its neighbours.
     """
 
     search_x_m: float = 0.2
@@ -419,8 +427,12 @@ class CorrelationConfig(_ConfigBase):
     odom_scale_max: float = 0.03
     odom_scale_min_age: int = 2
     odom_scale_min_points: int = 20
+    shadow_jump_m: float = 0.0
+    shadow_beams: int = 1
 
     def __post_init__(self) -> None:
+        _check_nonneg("shadow_jump_m", self.shadow_jump_m)
+        _check_int("shadow_beams", self.shadow_beams, 1)
         if not isinstance(self.odom_scale, bool):
             raise ValueError(f"odom_scale must be a bool, got {self.odom_scale!r}")
         _check_pos("odom_scale_window_m", self.odom_scale_window_m)

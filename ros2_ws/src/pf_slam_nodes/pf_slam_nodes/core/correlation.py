@@ -733,7 +733,11 @@ def _distances(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField, preci
 
 
 def correlate(
-    poses: np.ndarray, points_sensor: np.ndarray, field: LikelihoodField, cfg: CorrelationConfig
+    poses: np.ndarray,
+    points_sensor: np.ndarray,
+    field: LikelihoodField,
+    cfg: CorrelationConfig,
+    match: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Best pose and score of every particle in its search window.
 
@@ -750,6 +754,10 @@ def correlate(
         offset, transform the points with ``scan.transform_points(points, sensor_offset)`` first).
     field : LikelihoodField
     cfg : CorrelationConfig
+    match : numpy.ndarray, optional
+        ``(M,)`` bool: the points the window search and the refinement use (default all); the
+        scores are over every point (``correlation.shadow_jump_m``: the points behind an
+        occluding edge move no pose but still weigh the particles).
 
     Returns
     -------
@@ -761,13 +769,16 @@ def correlate(
     """
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
     pts = np.asarray(points_sensor, dtype=np.float64).reshape(-1, 2)
-    pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= cfg.range_max_m]
-    if pts.shape[0] == 0:
+    near = np.hypot(pts[:, 0], pts[:, 1]) <= cfg.range_max_m
+    matched = pts[near] if match is None else pts[near & np.asarray(match, dtype=bool).reshape(-1)]
+    pts = pts[near]
+    if matched.shape[0] == 0:
         return poses.copy(), np.zeros(poses.shape[0])
-    search_pts = pts[:: cfg.beam_stride]
+    best, _ = window_search(poses, matched[:: cfg.beam_stride], field, cfg)
+    best, _ = refine(
+        best, matched[:: cfg.refine_beam_stride], field, cfg.refine_iterations, cfg.refine_residual, cfg.precision
+    )
     refine_pts = pts[:: cfg.refine_beam_stride]
-    best, _ = window_search(poses, search_pts, field, cfg)
-    best, _ = refine(best, refine_pts, field, cfg.refine_iterations, cfg.refine_residual, cfg.precision)
     score = _score(best, poses, refine_pts, field, cfg)
     if cfg.prior_sigma_xy_m > 0 or cfg.prior_sigma_yaw_rad > 0:
         score0 = _score(poses, poses, refine_pts, field, cfg)

@@ -72,6 +72,22 @@ def sparse_scan_range(ranges: np.ndarray, cut_m: float, range_max: float, min_fr
     return float(np.partition(ret, k - 1)[k - 1])
 
 
+def shadow_beams(ranges: np.ndarray, jump_m: float, beams: int = 1) -> np.ndarray:
+    """``(B,)`` bool: the beams on the far side of an occluding edge, those with a neighbour
+    within ``beams`` beams (in scan order) whose range is shorter by more than ``jump_m``. Beams
+    without a finite range are never such a neighbour and never flagged. ``jump_m <= 0``: none."""
+    r = np.asarray(ranges, dtype=np.float64)
+    out = np.zeros(r.shape, dtype=bool)
+    if jump_m <= 0.0 or r.size < 2:
+        return out
+    f = np.where(np.isfinite(r), r, np.inf)
+    for j in range(1, min(int(beams), r.size - 1) + 1):
+        closer = f[:-j] < f[j:] - jump_m  # beam i - j in front of beam i
+        out[j:] |= closer
+        out[:-j] |= f[j:] < f[:-j] - jump_m  # beam i + j in front of beam i
+    return out & np.isfinite(r)
+
+
 def scan_to_points(
     ranges: np.ndarray,
     angles: np.ndarray,

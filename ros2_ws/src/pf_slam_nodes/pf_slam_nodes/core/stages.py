@@ -41,7 +41,7 @@ from .loops import LoopCloser, scan_polygon
 from .motion import sample_odometry_motion
 from .mount import mounted_scan
 from .odometry import OdomScaleEstimator
-from .scan import planar_scan, scan_to_points, sparse_scan_range, transform_points
+from .scan import planar_scan, scan_to_points, shadow_beams, sparse_scan_range, transform_points, valid_beams
 
 MOTION_STREAM = 1
 RESAMPLE_STREAM = 2
@@ -336,7 +336,11 @@ class CorrectionStage:
             ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset, range_min, range_max, extrinsic
         )
         cut = sparse_scan_range(ranges, self.corr_cfg.range_max_m, range_max, self.grid_cfg.min_return_fraction)
-        pts = scan_to_points(ranges, angles, max(range_min, 1e-6), min(range_max, cut))
+        lo, hi = max(range_min, 1e-6), min(range_max, cut)
+        pts = scan_to_points(ranges, angles, lo, hi)
+        # beams behind an occluding edge weigh the particles but move no pose (correlation.shadow_jump_m)
+        shadow = shadow_beams(ranges, self.corr_cfg.shadow_jump_m, self.corr_cfg.shadow_beams)
+        match = ~shadow[valid_beams(ranges, lo, hi)] if shadow.any() else None
         if np.any(offset):
             pts = transform_points(pts, offset)
         initialising = self.localizer is not None and self.pending_init is not None
@@ -356,7 +360,9 @@ class CorrectionStage:
                 particles, step = scaled_increment(particles, delta, scale)
             self._odom_prev = odom
         if self.known is not None and pts.shape[0] > 0:
-            pts = pts[self._observed(pts, particles[int(np.argmax(log_w))])]
+            seen = self._observed(pts, particles[int(np.argmax(log_w))])
+            pts = pts[seen]
+            match = None if match is None else match[seen]
         matched = self.field is not None and pts.shape[0] > 0
         if matched:
             if step is not None and self.seen_at is not None:
@@ -364,7 +370,7 @@ class CorrectionStage:
             corr_cfg = self.corr_cfg  # a sparse scan (grid.min_return_fraction): its own, longer cut
             if cut != corr_cfg.range_max_m:
                 corr_cfg = dataclasses.replace(corr_cfg, range_max_m=cut)
-            particles, scores = correlate(particles, pts, self.field, corr_cfg)
+            particles, scores = correlate(particles, pts, self.field, corr_cfg, match)
             log_w = update_log_weights(log_w, scores, self.corr_cfg.temperature)
         self.clock.add("correlate", t0)
         t0 = time.perf_counter()

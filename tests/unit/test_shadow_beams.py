@@ -1,0 +1,92 @@
+"""correlation.shadow_jump_m: the beams on the far side of an occluding edge are not matched.
+
+Where the background comes out from behind a pillar, the edge of what was seen moves with the
+viewpoint; points there pulled the matches along the corridor of the simulated ring floor (a
+scale-like drift of 0.2 % with perfect odometry and noise-free ranges)."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pf_slam_nodes.core.config import CorrelationConfig
+from pf_slam_nodes.core.geometry import compose, relative_pose
+from pf_slam_nodes.core.scan import shadow_beams
+from pf_slam_nodes.core.stages import CorrectionStage, MappingStage
+
+
+def test_the_far_side_of_a_range_jump_is_flagged():
+    r = np.array([5.0, 5.0, 2.0, 2.0, 5.0, 5.0, np.inf, 5.0, np.nan, 5.0])
+    # the pillar (beams 2, 3) stays; the wall beside it, one beam on each side, goes
+    assert shadow_beams(r, 0.3, 1).tolist() == [0, 1, 0, 0, 1, 0, 0, 0, 0, 0]
+    assert shadow_beams(r, 0.3, 2).tolist() == [1, 1, 0, 0, 1, 1, 0, 0, 0, 0]
+    # a jump below the threshold, no return (inf) or no value (NaN) is no edge
+    assert not shadow_beams(r, 3.5, 1).any()
+    assert not shadow_beams(np.array([5.0, np.inf, 5.0, np.nan]), 0.3, 1).any()
+    assert not shadow_beams(r, 0.0, 1).any()  # off
+
+
+def test_negative_values_are_refused():
+    with pytest.raises(ValueError, match="shadow_jump_m"):
+        CorrelationConfig(shadow_jump_m=-0.1)
+    with pytest.raises(ValueError, match="shadow_beams"):
+        CorrelationConfig(shadow_beams=0)
+
+
+def _along_track_drift(jump_m: float, steps: int = 300) -> tuple[float, float]:
+    """Match each scan of the ring floor's first leg (true increments, one particle, noise-free
+    ranges) against the map built from the previous matches: the summed along-track correction
+    (m) and its rms per scan (m)."""
+    from pf_slam_tools.bench.worlds import indoor_configs, sim_drive
+    from pf_slam_tools.sim.indoor import ray_cast
+    from pf_slam_tools.sim.worlds import simulate_world
+
+    world, drive = simulate_world("ring", 0), sim_drive("ring", 0)
+    truth, angles = drive.truth[:steps], drive.angles[0]
+    ranges = ray_cast(truth, angles, world.world.segments, drive.range_max).reshape(steps, -1)
+    filt, _, grid, corr, res = indoor_configs(0, {"correlation.shadow_jump_m": jump_m})[:5]
+    filt = dataclasses.replace(filt, num_particles=1)
+    correction, mapping = CorrectionStage(filt, grid, corr, res), MappingStage(filt, grid)
+    est = truth[0].copy()
+    correction.apply_patch(mapping.integrate(est, ranges[0], angles, 0.0, drive.range_max))
+    along = []
+    for k in range(1, steps):
+        start = compose(est, relative_pose(truth[k - 1], truth[k]))
+        est = correction.correct(start[None], np.zeros(1), ranges[k], angles, 0.0, drive.range_max).pose
+        along.append(float(np.asarray(relative_pose(start, est)).reshape(3)[0]))
+        correction.apply_patch(mapping.integrate(est, ranges[k], angles, 0.0, drive.range_max))
+    a = np.array(along)
+    return float(a.sum()), float(np.sqrt(np.mean(a**2)))
+
+
+def test_matches_no_longer_run_ahead_along_a_pillared_corridor():
+    drift_off, jitter_off = _along_track_drift(0.0)
+    drift_on, jitter_on = _along_track_drift(0.3)
+    assert drift_off > 0.12 and jitter_off > 0.014  # 90 m of corridor: 0.19 m ahead, 17 mm per scan
+    assert abs(drift_on) < 0.08 and jitter_on < 0.011  # 0.04 m, 8 mm
+
+
+def test_points_left_out_of_the_match_still_weigh_the_particles():
+    from pf_slam_nodes.core.config import GridConfig
+    from pf_slam_nodes.core.correlation import build_likelihood_field_from_map, correlate
+    from pf_slam_nodes.core.grid import LogOddsGrid
+    from pf_slam_nodes.core.scan import scan_to_points
+
+    angles = np.radians(np.arange(-90.0, 90.5, 1.0))
+    box = np.where(np.abs(np.sin(angles)) > 1e-9, 2.1 / np.maximum(np.abs(np.sin(angles)), 1e-9), np.inf)
+    ranges = np.minimum(box, 4.3 / np.maximum(np.cos(angles), 1e-9))  # a room: walls at y = +-2.1, x = 4.3
+    grid = LogOddsGrid(GridConfig(resolution_m=0.05, size_x_m=12.0, size_y_m=12.0))
+    for _ in range(3):
+        grid.integrate_scan(np.zeros(3), ranges, angles)
+    cfg = CorrelationConfig()
+    field = build_likelihood_field_from_map(grid.to_occupancy_map(), cfg)
+    pts = scan_to_points(ranges, angles, 1e-6, 20.0)
+    pts[::7] += 0.25  # every 7th point off the walls
+    match = np.ones(len(pts), bool)
+    match[::7] = False
+    start = np.array([[0.04, -0.03, 0.02], [-0.05, 0.02, -0.01]])
+    pose_m, score_m = correlate(start.copy(), pts, field, cfg, match)
+    pose_k, score_k = correlate(start.copy(), pts[match], field, cfg)
+    assert np.allclose(pose_m, pose_k)  # the pose comes from the matched points alone ...
+    assert np.abs(pose_m[0] - pose_m[1]).max() < 1e-3  # both starts end at one pose
+    assert np.all(score_m < score_k - 1.0)  # ... the score from every point (the off ones cost)
