@@ -392,13 +392,12 @@ class CorrelationConfig(_ConfigBase):
     odom_scale_min_points : int
         correlation.odom_scale: fewer such points: that correction measures nothing.
     shadow_jump_m : float
-        Beams on the far side of an occluding edge are not matched: a beam whose neighbour within
-        ``shadow_beams`` beams is closer by more than this (m). Such a point lies where the
-        background comes out from behind the edge, a boundary that moves with the viewpoint
-        (the map there was seen from elsewhere, or not at all), and on a real laser it is often a
-        mixed return between the two surfaces. 0 disables the rule. The mapper still maps them.
+        A beam with a neighbour (within ``shadow_beams`` beams) closer by more than this (m) moves
+        no pose (search, refinement) but is scored and mapped: it lies where the background comes
+        out from behind an occluding edge, a boundary that moves with the viewpoint (and on a real
+        laser, mixed returns). 0 disables the rule.
     shadow_beams : int
-        correlation.shadow_jump_m: how many beams on each side of a beam are its neighbours.
+        correlation.shadow_jump_m: beams on each side of a beam that are its neighbours.
     """
 
     search_x_m: float = 0.2
@@ -431,7 +430,6 @@ class CorrelationConfig(_ConfigBase):
     shadow_beams: int = 1
 
     def __post_init__(self) -> None:
-        _check_nonneg("shadow_jump_m", self.shadow_jump_m)
         _check_int("shadow_beams", self.shadow_beams, 1)
         if not isinstance(self.odom_scale, bool):
             raise ValueError(f"odom_scale must be a bool, got {self.odom_scale!r}")
@@ -444,10 +442,8 @@ class CorrelationConfig(_ConfigBase):
             _check_unit(name, getattr(self, name))
         if not isinstance(self.skip_unknown, bool):
             raise ValueError(f"skip_unknown must be a bool, got {self.skip_unknown!r}")
-        _check_nonneg("prior_sigma_xy_m", self.prior_sigma_xy_m)
-        _check_nonneg("prior_sigma_yaw_rad", self.prior_sigma_yaw_rad)
-        _check_nonneg("search_x_m", self.search_x_m)
-        _check_nonneg("search_y_m", self.search_y_m)
+        for name in ("prior_sigma_xy_m", "prior_sigma_yaw_rad", "shadow_jump_m", "search_x_m", "search_y_m"):
+            _check_nonneg(name, getattr(self, name))
         _check_nonneg("search_yaw_rad", self.search_yaw_rad)
         _check_pos("step_xy_m", self.step_xy_m)
         _check_pos("step_yaw_rad", self.step_yaw_rad)

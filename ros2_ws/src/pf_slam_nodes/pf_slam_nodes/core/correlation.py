@@ -739,33 +739,16 @@ def correlate(
     cfg: CorrelationConfig,
     match: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Best pose and score of every particle in its search window.
+    """Best pose ``(N, 3)`` and score ``(N,)`` of every particle (``poses``, ``(N, 3)``, map frame)
+    in its search window, for scan endpoints ``points_sensor`` ``(M, 2)`` in the frame of the poses
+    (a laser offset applied first: ``scan.transform_points``).
 
     Window search (:func:`window_search`, beams ``::beam_stride``) then Gauss-Newton refinement
-    (:func:`refine`, beams ``::refine_beam_stride``). Beams longer than ``cfg.range_max_m`` are
-    ignored.
-
-    Parameters
-    ----------
-    poses : numpy.ndarray
-        ``(N, 3)`` particle poses (map frame).
-    points_sensor : numpy.ndarray
-        ``(M, 2)`` scan endpoints in the frame of the poses (the robot frame; if the laser is
-        offset, transform the points with ``scan.transform_points(points, sensor_offset)`` first).
-    field : LikelihoodField
-    cfg : CorrelationConfig
-    match : numpy.ndarray, optional
-        ``(M,)`` bool: the points the window search and the refinement use (default all); the
-        scores are over every point (``correlation.shadow_jump_m``: the points behind an
-        occluding edge move no pose but still weigh the particles).
-
-    Returns
-    -------
-    best_poses : numpy.ndarray
-        ``(N, 3)`` float64.
-    log_scores : numpy.ndarray
-        ``(N,)`` ``-sum d^2 / (2 sigma^2)`` over the refinement beams at ``best_poses``
-        (0 when the scan has no usable beam).
+    (:func:`refine`, beams ``::refine_beam_stride``); beams longer than ``cfg.range_max_m`` are
+    ignored. ``match`` ``(M,)`` bool: the points these two use (default all; the points behind an
+    occluding edge, ``correlation.shadow_jump_m``, move no pose). The score, ``-sum d^2 / (2
+    sigma^2)`` over every point at the refinement's stride (0 when no beam is usable), weighs the
+    particles.
     """
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
     pts = np.asarray(points_sensor, dtype=np.float64).reshape(-1, 2)
@@ -775,9 +758,8 @@ def correlate(
     if matched.shape[0] == 0:
         return poses.copy(), np.zeros(poses.shape[0])
     best, _ = window_search(poses, matched[:: cfg.beam_stride], field, cfg)
-    best, _ = refine(
-        best, matched[:: cfg.refine_beam_stride], field, cfg.refine_iterations, cfg.refine_residual, cfg.precision
-    )
+    it, res = cfg.refine_iterations, cfg.refine_residual
+    best, _ = refine(best, matched[:: cfg.refine_beam_stride], field, it, res, cfg.precision)
     refine_pts = pts[:: cfg.refine_beam_stride]
     score = _score(best, poses, refine_pts, field, cfg)
     if cfg.prior_sigma_xy_m > 0 or cfg.prior_sigma_yaw_rad > 0:
