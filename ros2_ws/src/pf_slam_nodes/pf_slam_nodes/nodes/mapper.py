@@ -274,7 +274,7 @@ class Mapper(Node):
         self.reset_pending = False
         self.stage.grid = self.stage._occ = self.stage.pose = None
         self._warned_bound = False
-        self.path.set(np.zeros(0, np.int64), np.zeros((0, 3)))
+        self.path = PoseLog()
         self.trajectory.drop_before(stamp)  # kept from this scan on
         self.trajectory_from = stamp
         marker = convert.grid_to_msg(np.zeros((0, 0), np.int8), 0.0, (0.0, 0.0), stamp, self.map_frame)

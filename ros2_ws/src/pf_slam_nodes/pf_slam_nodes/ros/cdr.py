@@ -212,6 +212,7 @@ def _pose_xy_yaw(r: CdrReader, raw: bytes) -> np.ndarray:
 
 
 def _string_bytes(s: str) -> bytes:
+    """A CDR string: its length with the NUL (uint32, little endian), its bytes, the NUL."""
     b = s.encode() + b"\0"
     return struct.pack("<I", len(b)) + b
 
@@ -263,18 +264,16 @@ def path_xy_yaw(raw: bytes) -> tuple[np.ndarray, np.ndarray]:
     r.header()
     k = r.u32()
     stamps = np.empty(k, np.int64)
-    vals = np.empty((k, 7))
+    poses = np.empty((k, 3))
 
     def record(i: int) -> int:
-        stamps[i] = r.stamp_ns()
-        n = r.u32()
-        r._need(n)
-        r.pos += n
-        r._align(8)
-        r._need(56)
-        vals[i] = struct.unpack_from(r.end + "7d", raw, r.pos)
+        """Pose ``i`` at the reader's position (4-aligned); returns its frame_id's length."""
+        at = r.pos
+        stamps[i] = r.header()
+        frame_len = r.pos - at - 12  # the stamp and the string's length field
+        poses[i] = _pose_xy_yaw(r, raw)
         r.pos += 56
-        return n
+        return frame_len
 
     i = 0
     if k:
@@ -290,13 +289,13 @@ def path_xy_yaw(raw: bytes) -> tuple[np.ndarray, np.ndarray]:
 
             if np.all(column(8, 4, "<u4") == frame_len):
                 stamps[1:] = column(0, 4, "<i4")[:, 0].astype(np.int64) * 1_000_000_000 + column(4, 4, "<u4")[:, 0]
-                vals[1:] = column(size - 56, 56, "<f8")
+                q = column(size - 56, 56, "<f8")
+                poses[1:] = np.column_stack([q[:, 0], q[:, 1], quat_to_yaw(q[:, 3], q[:, 4], q[:, 5], q[:, 6])])
                 i = k
     while i < k:
         record(i)
         i += 1
-    yaw = quat_to_yaw(vals[:, 3], vals[:, 4], vals[:, 5], vals[:, 6])
-    return stamps, np.column_stack([vals[:, 0], vals[:, 1], yaw])
+    return stamps, poses
 
 
 def clock_bytes(stamp_ns: int) -> bytes:
@@ -308,8 +307,7 @@ class PoseStampedWriter:
     """Serializes planar poses as geometry_msgs/PoseStamped (little-endian CDR) for one frame."""
 
     def __init__(self, frame_id: str) -> None:
-        name = frame_id.encode() + b"\0"
-        head = struct.pack("<I", len(name)) + name  # after the 8-byte stamp
+        head = _string_bytes(frame_id)  # after the 8-byte stamp
         pad = (-(8 + len(head))) % 8  # the pose's doubles are 8-aligned
         self._frame = head + b"\0" * pad
         self._pose = struct.Struct("<3d4d")
@@ -330,12 +328,8 @@ class TransformWriter:
     (little-endian CDR) for a fixed parent -> child: odom -> base_link at every scan."""
 
     def __init__(self, parent: str, child: str) -> None:
-        def string(s: str) -> bytes:
-            b = s.encode() + b"\0"
-            return struct.pack("<I", len(b)) + b
-
-        head = string(parent)  # after the count (4) and the stamp (8)
-        head += b"\0" * ((-(12 + len(head))) % 4) + string(child)
+        head = _string_bytes(parent)  # after the count (4) and the stamp (8)
+        head += b"\0" * ((-(12 + len(head))) % 4) + _string_bytes(child)
         self._frames = head + b"\0" * ((-(12 + len(head))) % 8)  # the doubles are 8-aligned
         self._count = struct.pack("<I", 1)
         self._tf = struct.Struct("<3d4d")
@@ -358,8 +352,7 @@ class PoseArrayWriter:
     localization) without a Python object per pose."""
 
     def __init__(self, frame_id: str) -> None:
-        name = frame_id.encode() + b"\0"
-        head = struct.pack("<I", len(name)) + name  # after the 8-byte stamp
+        head = _string_bytes(frame_id)  # after the 8-byte stamp
         head += b"\0" * ((-(8 + len(head))) % 4)  # the sequence count is 4-aligned
         self._frame = head
         self._pad = b"\0" * ((-(8 + len(head) + 4)) % 8)  # the poses' doubles are 8-aligned
