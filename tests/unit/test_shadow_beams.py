@@ -4,15 +4,12 @@ Where the background comes out from behind a pillar, the edge of what was seen m
 viewpoint; points there pulled the matches along the corridor of the simulated ring floor (a
 scale-like drift of 0.2 % with perfect odometry and noise-free ranges)."""
 
-import dataclasses
-
 import numpy as np
 import pytest
+from ring_harness import along_track_drift
 
 from pf_slam_nodes.core.config import CorrelationConfig
-from pf_slam_nodes.core.geometry import compose, relative_pose
 from pf_slam_nodes.core.scan import shadow_beams
-from pf_slam_nodes.core.stages import CorrectionStage, MappingStage
 
 
 def test_the_far_side_of_a_range_jump_is_flagged():
@@ -33,35 +30,9 @@ def test_negative_values_are_refused():
         CorrelationConfig(shadow_beams=0)
 
 
-def _along_track_drift(jump_m: float, steps: int = 300) -> tuple[float, float]:
-    """Match each scan of the ring floor's first leg (true increments, one particle, noise-free
-    ranges) against the map built from the previous matches: the summed along-track correction
-    (m) and its rms per scan (m)."""
-    from pf_slam_tools.bench.worlds import indoor_configs, sim_drive
-    from pf_slam_tools.sim.indoor import ray_cast
-    from pf_slam_tools.sim.worlds import simulate_world
-
-    world, drive = simulate_world("ring", 0), sim_drive("ring", 0)
-    truth, angles = drive.truth[:steps], drive.angles[0]
-    ranges = ray_cast(truth, angles, world.world.segments, drive.range_max).reshape(steps, -1)
-    filt, _, grid, corr, res = indoor_configs(0, {"correlation.shadow_jump_m": jump_m})[:5]
-    filt = dataclasses.replace(filt, num_particles=1)
-    correction, mapping = CorrectionStage(filt, grid, corr, res), MappingStage(filt, grid)
-    est = truth[0].copy()
-    correction.apply_patch(mapping.integrate(est, ranges[0], angles, 0.0, drive.range_max))
-    along = []
-    for k in range(1, steps):
-        start = compose(est, relative_pose(truth[k - 1], truth[k]))
-        est = correction.correct(start[None], np.zeros(1), ranges[k], angles, 0.0, drive.range_max).pose
-        along.append(float(np.asarray(relative_pose(start, est)).reshape(3)[0]))
-        correction.apply_patch(mapping.integrate(est, ranges[k], angles, 0.0, drive.range_max))
-    a = np.array(along)
-    return float(a.sum()), float(np.sqrt(np.mean(a**2)))
-
-
 def test_matches_no_longer_run_ahead_along_a_pillared_corridor():
-    drift_off, jitter_off = _along_track_drift(0.0)
-    drift_on, jitter_on = _along_track_drift(0.3)
+    drift_off, jitter_off = along_track_drift({"correlation.shadow_jump_m": 0.0, "grid.peak_ratio": 0.0})
+    drift_on, jitter_on = along_track_drift({"correlation.shadow_jump_m": 0.3, "grid.peak_ratio": 0.0})
     assert drift_off > 0.12 and jitter_off > 0.014  # 90 m of corridor: 0.19 m ahead, 17 mm per scan
     assert abs(drift_on) < 0.08 and jitter_on < 0.011  # 0.04 m, 8 mm
 

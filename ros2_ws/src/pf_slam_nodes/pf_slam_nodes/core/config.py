@@ -215,10 +215,8 @@ class GridConfig(_ConfigBase):
     log_odds_miss : float
         Increment (negative) for cells a beam passes through. -0.2 against a hit of 0.85: a cell
         stays an obstacle while it returns about one beam in five of those that reach it (as
-        GMapping's hit counts and Cartographer's 0.55 / 0.49 odds do), so walls and pillars
-        grazed or passed near by later beams stay in the map. Over 5 filter seeds, -0.2 vs
-        -0.4: intel_910 relations worst 0.059 -> 0.025 m, intel_2726 0.059 -> 0.020 m,
-        simulated corridors ATE worst 1.77 -> 0.73 m (docs/architecture.md, "Walls that stay").
+        GMapping's hit counts and Cartographer's 0.55 / 0.49 odds do): walls and pillars grazed
+        by later beams stay (docs/architecture.md, "Walls that stay").
     clip_min, clip_max : float
         Log-odds clamp.
     range_max_usable_m : float
@@ -230,8 +228,7 @@ class GridConfig(_ConfigBase):
         ``range_max_usable_m`` (the map) or ``correlation.range_max_m`` (the match) has that
         range raised, up to the sensor's ``range_max``, until this fraction returns within it
         (:func:`~.scan.sparse_scan_range`): open outdoor spaces, where most returns are far.
-        Indoors a quarter of the beams return within 20 m in every scan of the CARMEN logs, so
-        0.25 (the indoor profile) changes nothing there. 0 (default): fixed ranges.
+        The indoor profile's 0.25 changes no scan of the CARMEN logs. 0 (default): fixed ranges.
     graze_margin_m : float
         A beam that grazes a surface (incidence ``a`` from the normal, the surface through its
         neighbours' ends) leaves the last ``floor(1/sin(a)) - 1`` cells before its end unchanged,
@@ -240,11 +237,17 @@ class GridConfig(_ConfigBase):
     surface_fill_m : float
         The segment between two neighbouring beams' ends is marked as hit cells too when it is
         at most this long (m) and both ends lie on one smooth surface (each end collinear with
-        its other neighbour within 5 degrees: no range jump at an edge, no clutter). A scan then
-        maps its walls as lines, not as the dots its beams happen to hit, so the next scan's
-        points no longer score best where they repeat the last scan's dots (a pull back towards
-        the previous pose, which makes the matches lag along corridors). 0 (default): hits at
-        the beams' ends only. The indoor profile's 1.0: docs/architecture.md, "Walls as lines".
+        its other neighbour within 5 degrees: no range jump at an edge, no clutter): walls
+        mapped as lines, not as the dots the beams hit, which pulled the next scan's points back
+        to the last scan's dots (the matches lagged along corridors). 0 (default): hits at the
+        beams' ends only. The indoor profile's 1.0: docs/architecture.md, "Walls as lines".
+    peak_ratio : float
+        The correlator matches against the occupied cells that hold at least this fraction of
+        the beam ends of their 4-neighbour with the most (counted per cell): a wall that noisy
+        ranges spread over two cells is matched at its peak, not as a two-cell plateau (whose
+        far side, mapped from overshooting beams, pulls the matches ahead). ``/map`` is not
+        changed. 0 (default, every profile): every occupied cell; 0.5 removes the simulated
+        worlds' drift but costs some real logs (docs/architecture.md, "Walls at their peak").
     max_cells : int
         Bound on the grown grid (cells, rows x columns; the mapper's grid and the correlator's
         likelihood field take ~19 bytes per cell together). A scan reaching beyond what this
@@ -266,6 +269,7 @@ class GridConfig(_ConfigBase):
     max_cells: int = 100_000_000
     graze_margin_m: float = 0.0
     surface_fill_m: float = 0.0
+    peak_ratio: float = 0.0
 
     def __post_init__(self) -> None:
         _check_pos("resolution_m", self.resolution_m)
@@ -280,22 +284,15 @@ class GridConfig(_ConfigBase):
         if self.origin_x_m is not None:
             _check_finite("origin_x_m", self.origin_x_m)
             _check_finite("origin_y_m", self.origin_y_m)
-        _check_finite("log_odds_hit", self.log_odds_hit)
-        if self.log_odds_hit <= 0:
-            raise ValueError(f"log_odds_hit must be > 0, got {self.log_odds_hit!r}")
-        _check_finite("log_odds_miss", self.log_odds_miss)
-        if self.log_odds_miss >= 0:
-            raise ValueError(f"log_odds_miss must be < 0, got {self.log_odds_miss!r}")
-        _check_finite("clip_min", self.clip_min)
-        _check_finite("clip_max", self.clip_max)
-        if self.clip_min >= 0:
-            raise ValueError(f"clip_min must be < 0, got {self.clip_min!r}")
-        if self.clip_max <= 0:
-            raise ValueError(f"clip_max must be > 0, got {self.clip_max!r}")
+        for name, sign in (("log_odds_hit", 1), ("log_odds_miss", -1), ("clip_min", -1), ("clip_max", 1)):
+            _check_finite(name, getattr(self, name))
+            if getattr(self, name) * sign <= 0:
+                raise ValueError(f"{name} must be {'>' if sign > 0 else '<'} 0, got {getattr(self, name)!r}")
         _check_pos("range_max_usable_m", self.range_max_usable_m)
         _check_unit("min_return_fraction", self.min_return_fraction)
         _check_nonneg("graze_margin_m", self.graze_margin_m)
         _check_nonneg("surface_fill_m", self.surface_fill_m)
+        _check_unit("peak_ratio", self.peak_ratio)
         if self.size_x_m / self.resolution_m > 50000 or self.size_y_m / self.resolution_m > 50000:
             raise ValueError(
                 f"size_x_m/size_y_m too large for resolution_m={self.resolution_m!r}: "

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import cv2
 import numpy as np
 
 from .config import GridConfig
@@ -22,6 +23,8 @@ Bounds = tuple[int, int, int, int]
 
 # |sensor position| (cells from the initial grid) beyond which a scan is not traced
 _MAX_COORD = float(2**40)
+# the 4-neighbours of a cell (not the cell): the kernel of LogOddsGrid.matching_occupancy
+_CROSS = np.array([[0, 1, 0], [1, 0, 1], [0, 1, 0]], dtype=np.uint8)
 
 
 def _world_to_cell(xy: np.ndarray, origin: np.ndarray, resolution: float) -> np.ndarray:
@@ -196,6 +199,8 @@ class LogOddsGrid:
         self.anchor = self.origin.copy()
         self.offset = np.zeros(2, dtype=np.int64)
         self.log_odds = np.zeros((self.height, self.width), dtype=np.float32)
+        #: ``(H, W)`` float32 beam ends per cell (``cfg.peak_ratio > 0``, else None)
+        self.hits = np.zeros_like(self.log_odds) if cfg.peak_ratio > 0 else None
         self.cells_beyond_bound = 0
         self.scans_beyond_bound = 0
         self.growths = 0
@@ -217,8 +222,8 @@ class LogOddsGrid:
 
     @property
     def nbytes(self) -> int:
-        """Bytes of the grid's array."""
-        return int(self.log_odds.nbytes)
+        """Bytes of the grid's arrays."""
+        return int(self.log_odds.nbytes) + (0 if self.hits is None else int(self.hits.nbytes))
 
     def grow(self, add: tuple[int, int, int, int]) -> None:
         """Add ``(top, bottom, left, right)`` unknown rows / columns around the grid."""
@@ -226,6 +231,8 @@ class LogOddsGrid:
         if not (top or bottom or left or right):
             return
         self.log_odds = grow_array(self.log_odds, (top, bottom, left, right), 0.0)
+        if self.hits is not None:
+            self.hits = grow_array(self.hits, (top, bottom, left, right), 0.0)
         self.height, self.width = self.log_odds.shape
         self.offset = self.offset + np.array([left, top], dtype=np.int64)
         self.origin = self.anchor - self.resolution * self.offset.astype(np.float64)
@@ -458,6 +465,9 @@ class LogOddsGrid:
         # fancy-index assignment writes repeated indices once -> one update per cell per scan
         flat[free_idx] = np.maximum(flat[free_idx] + np.float32(cfg.log_odds_miss), np.float32(cfg.clip_min))
         flat[hit_idx] = np.minimum(hit_before + np.float32(cfg.log_odds_hit), np.float32(cfg.clip_max))
+        if self.hits is not None and hit_idx.size:
+            cells, count = np.unique(hit_idx, return_counts=True)
+            self.hits.reshape(-1)[cells] += count.astype(np.float32)
         allidx = np.concatenate([free_idx, hit_idx])
         self.last_touched_idx = allidx
         self.last_touched_bounds = None
@@ -473,6 +483,21 @@ class LogOddsGrid:
                 self._touched = [min(t[0], b[0]), max(t[1], b[1]), min(t[2], b[2]), max(t[3], b[3])]
 
     # ------------------------------------------------------------------ export
+    def matching_occupancy(self, occ: np.ndarray, bounds: Bounds) -> np.ndarray:
+        """The int8 occupancy ``occ`` of the cells ``bounds`` as the scan matcher is to see it
+        (``cfg.peak_ratio``): a cell with fewer beam ends than ``peak_ratio`` times those of its
+        4-neighbour with the most is no surface to match (its value becomes at most 0). A copy."""
+        if self.hits is None:
+            return np.array(occ, dtype=np.int8, copy=True)
+        r0, r1, c0, c1 = bounds
+        a0, a1, b0, b1 = max(r0 - 1, 0), min(r1 + 1, self.height), max(c0 - 1, 0), min(c1 + 1, self.width)
+        hits = self.hits[a0:a1, b0:b1]
+        most = cv2.dilate(hits, _CROSS, borderType=cv2.BORDER_CONSTANT, borderValue=0.0)
+        low = (hits < np.float32(self.cfg.peak_ratio) * most)[r0 - a0 : r1 - a0, c0 - b0 : c1 - b0]
+        out = np.array(occ, dtype=np.int8, copy=True)
+        np.minimum(out, 0, out=out, where=low)
+        return out
+
     def _crop(self, bounds: Bounds | None) -> np.ndarray:
         if bounds is None:
             return self.log_odds
