@@ -33,19 +33,22 @@ def test_beam_ends_are_counted_per_cell_and_survive_growth():
 
 def test_only_the_peak_of_a_wall_is_matched():
     g = _grid(0.5)
-    occ = np.full((4, 3), 100, np.int8)
-    occ[3] = -1
+    occ = np.full((10, 10), -1, np.int8)
+    occ[0:3, 0:3] = 100
     g.hits[0:4, 0:3] = np.array([[10, 10, 10], [3, 6, 4], [0, 0, 0], [0, 0, 0]], np.float32)
-    occ[2] = 0
-    out = g.matching_occupancy(occ, (0, 4, 0, 3))
+    occ[2, 0:3] = 0
+    out, bounds = g.matching_patch(occ, (0, 4, 0, 3))
+    assert bounds == (0, 5, 0, 4)  # grown by the cells whose neighbours changed (clipped at the edge)
     # row 1 is the overshoot side of the wall in row 0: its cells under half the wall's count go
-    assert out[1].tolist() == [0, 100, 0]
-    assert out[0].tolist() == [100] * 3 and out[2].tolist() == [0] * 3 and out[3].tolist() == [-1] * 3
-    assert out is not occ and occ[1, 0] == 100  # a copy: /map keeps every occupied cell
+    assert out[1, 0:3].tolist() == [0, 100, 0]
+    assert out[0, 0:3].tolist() == [100] * 3 and out[2, 0:3].tolist() == [0] * 3 and out[3, 0:3].tolist() == [-1] * 3
+    assert occ[1, 0] == 100  # a copy: /map keeps every occupied cell
     # a block's edge cells are judged with their neighbours beyond the block
-    assert g.matching_occupancy(occ[1:2], (1, 2, 0, 3)).tolist() == [[0, 100, 0]]
+    out, bounds = g.matching_patch(occ, (1, 2, 0, 3))
+    assert bounds == (0, 3, 0, 4) and out[1, 0:3].tolist() == [0, 100, 0]
     off = _grid(0.0)
-    assert np.array_equal(off.matching_occupancy(occ, (0, 4, 0, 3)), occ)
+    out, bounds = off.matching_patch(occ, (0, 4, 0, 3))
+    assert bounds == (0, 4, 0, 3) and np.array_equal(out, occ[0:4, 0:3])
 
 
 def test_refused_values():

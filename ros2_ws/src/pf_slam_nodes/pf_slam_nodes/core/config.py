@@ -285,9 +285,10 @@ class GridConfig(_ConfigBase):
             _check_finite("origin_x_m", self.origin_x_m)
             _check_finite("origin_y_m", self.origin_y_m)
         for name, sign in (("log_odds_hit", 1), ("log_odds_miss", -1), ("clip_min", -1), ("clip_max", 1)):
-            _check_finite(name, getattr(self, name))
-            if getattr(self, name) * sign <= 0:
-                raise ValueError(f"{name} must be {'>' if sign > 0 else '<'} 0, got {getattr(self, name)!r}")
+            value = getattr(self, name)
+            _check_finite(name, value)
+            if value * sign <= 0:
+                raise ValueError(f"{name} must be {'>' if sign > 0 else '<'} 0, got {value!r}")
         _check_pos("range_max_usable_m", self.range_max_usable_m)
         _check_unit("min_return_fraction", self.min_return_fraction)
         _check_nonneg("graze_margin_m", self.graze_margin_m)

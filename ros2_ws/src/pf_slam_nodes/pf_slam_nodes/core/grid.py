@@ -23,7 +23,7 @@ Bounds = tuple[int, int, int, int]
 
 # |sensor position| (cells from the initial grid) beyond which a scan is not traced
 _MAX_COORD = float(2**40)
-# the 4-neighbours of a cell (not the cell): the kernel of LogOddsGrid.matching_occupancy
+# the 4-neighbours of a cell (not the cell): the kernel of LogOddsGrid.matching_patch
 _CROSS = np.array([[0, 1, 0], [1, 0, 1], [0, 1, 0]], dtype=np.uint8)
 
 
@@ -483,20 +483,23 @@ class LogOddsGrid:
                 self._touched = [min(t[0], b[0]), max(t[1], b[1]), min(t[2], b[2]), max(t[3], b[3])]
 
     # ------------------------------------------------------------------ export
-    def matching_occupancy(self, occ: np.ndarray, bounds: Bounds) -> np.ndarray:
-        """The int8 occupancy ``occ`` of the cells ``bounds`` as the scan matcher is to see it
-        (``cfg.peak_ratio``): a cell with fewer beam ends than ``peak_ratio`` times those of its
-        4-neighbour with the most is no surface to match (its value becomes at most 0). A copy."""
-        if self.hits is None:
-            return np.array(occ, dtype=np.int8, copy=True)
+    def matching_patch(self, occ: np.ndarray, bounds: Bounds) -> tuple[np.ndarray, Bounds]:
+        """The scan matcher's view of the cells ``bounds`` that a change touched, from ``occ``, the
+        grid's ``(H, W)`` int8 occupancy: a copy of the block and its bounds. With ``cfg.peak_ratio``
+        the block grows by one cell (a cell's beam ends decide whether its neighbours are peaks),
+        and a cell with fewer beam ends than ``peak_ratio`` times those of its 4-neighbour with the
+        most is no surface to match (its value becomes at most 0)."""
         r0, r1, c0, c1 = bounds
+        if self.hits is None:
+            return np.array(occ[r0:r1, c0:c1], dtype=np.int8, copy=True), bounds
+        r0, r1, c0, c1 = max(r0 - 1, 0), min(r1 + 1, self.height), max(c0 - 1, 0), min(c1 + 1, self.width)
         a0, a1, b0, b1 = max(r0 - 1, 0), min(r1 + 1, self.height), max(c0 - 1, 0), min(c1 + 1, self.width)
         hits = self.hits[a0:a1, b0:b1]
         most = cv2.dilate(hits, _CROSS, borderType=cv2.BORDER_CONSTANT, borderValue=0.0)
         low = (hits < np.float32(self.cfg.peak_ratio) * most)[r0 - a0 : r1 - a0, c0 - b0 : c1 - b0]
-        out = np.array(occ, dtype=np.int8, copy=True)
+        out = np.array(occ[r0:r1, c0:c1], dtype=np.int8, copy=True)
         np.minimum(out, 0, out=out, where=low)
-        return out
+        return out, (r0, r1, c0, c1)
 
     def _crop(self, bounds: Bounds | None) -> np.ndarray:
         if bounds is None:

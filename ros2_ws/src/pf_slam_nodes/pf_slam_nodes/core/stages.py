@@ -562,7 +562,7 @@ class MappingStage:
         move = compose(corr, self.frame)  # the filter's frame -> the optimised one
         self._pending_frame = relative_pose(corr, np.zeros(3))  # optimised -> raw
         g = self.grid
-        occ = g.matching_occupancy(self._occ, (0, g.height, 0, g.width))
+        occ, _ = g.matching_patch(self._occ, (0, g.height, 0, g.width))
         return MapPatch(occ, g.resolution, g.origin.copy(), move)
 
     def _render(self) -> np.ndarray:
@@ -621,11 +621,8 @@ class MappingStage:
         if idx.size == 0:
             return MapPatch(np.zeros((0, 0), np.int8), g.resolution, g.origin.copy())
         self._occ.reshape(-1)[idx] = g.occupancy_at(idx)  # only the touched cells changed
-        r0, r1, c0, c1 = g.last_touched_bounds
-        if g.hits is not None:  # a neighbour's beam ends decide whether a cell is a peak
-            r0, r1, c0, c1 = max(r0 - 1, 0), min(r1 + 1, g.height), max(c0 - 1, 0), min(c1 + 1, g.width)
-        bounds = (r0, r1, c0, c1)
-        return MapPatch(g.matching_occupancy(self._occ[r0:r1, c0:c1], bounds), g.resolution, g.bounds_origin(bounds))
+        occ, bounds = g.matching_patch(self._occ, g.last_touched_bounds)
+        return MapPatch(occ, g.resolution, g.bounds_origin(bounds))
 
     def map_occupancy(self) -> tuple[np.ndarray, float, np.ndarray]:
         """int8 occupancy of the explored part of the grid (the whole grid before any scan)."""
