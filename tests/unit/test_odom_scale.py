@@ -45,11 +45,13 @@ def test_unobserved_steps_slow_it_down_but_do_not_bias_it():
     assert abs(est.scale - 0.992) < 0.0015, est.scale
 
 
-def test_nothing_applied_before_min_travel_and_clamped():
-    est = OdomScaleEstimator(window_m=1000.0, min_travel_m=50.0, max_error=0.01)
+def test_phased_in_over_the_ramp_and_clamped():
+    est = OdomScaleEstimator(window_m=1000.0, ramp_m=100.0, max_error=0.01)
+    assert est.scale == 1.0  # nothing measured
     for _ in range(20):
         est.add(2.0, 2.0 * 0.95)
-    assert est.travel_m == 40.0 and est.scale == 1.0
+    # clamped to 1 - 0.01, then 40 of the 100 m ramp of it applied
+    assert est.travel_m == 40.0 and est.scale == pytest.approx(1.0 - 0.4 * 0.01)
     for _ in range(200):
         est.add(2.0, 2.0 * 0.95)
     assert est.raw < 0.99 and est.scale == pytest.approx(0.99)
@@ -61,6 +63,8 @@ def test_nothing_applied_before_min_travel_and_clamped():
 def test_bad_parameters():
     with pytest.raises(ValueError, match="window_m"):
         OdomScaleEstimator(window_m=0.0)
+    with pytest.raises(ValueError, match="ramp_m"):
+        OdomScaleEstimator(ramp_m=-1.0)
     with pytest.raises(ValueError, match="odom_scale_min_age"):
         cfg.CorrelationConfig(odom_scale_min_age=0)
 
@@ -96,7 +100,7 @@ def test_correction_stage_learns_the_scale_of_odometry_that_under_reports():
             max_distance_m=0.5,
             prior_sigma_xy_m=0.02,
             odom_scale=on,
-            odom_scale_min_travel_m=5.0,
+            odom_scale_ramp_m=5.0,
             odom_scale_window_m=200.0,
             odom_scale_max=0.05,
         )

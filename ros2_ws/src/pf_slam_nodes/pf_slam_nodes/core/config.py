@@ -380,8 +380,9 @@ class CorrelationConfig(_ConfigBase):
     odom_scale_window_m : float
         correlation.odom_scale: travel over which the measurements are averaged (exponential
         forgetting, m).
-    odom_scale_min_travel_m : float
-        correlation.odom_scale: travel measured before the estimate is applied (m).
+    odom_scale_ramp_m : float
+        correlation.odom_scale: the estimate's departure from 1 is phased in over this much measured
+        travel (m): applied in proportion to the travel, in full from here on.
     odom_scale_max : float
         correlation.odom_scale: the estimate is clamped to ``1 +- odom_scale_max``.
     odom_scale_min_age : int
@@ -420,7 +421,7 @@ class CorrelationConfig(_ConfigBase):
     gain_yaw: float = 1.0
     odom_scale: bool = False
     odom_scale_window_m: float = 1000.0
-    odom_scale_min_travel_m: float = 50.0
+    odom_scale_ramp_m: float = 300.0
     odom_scale_max: float = 0.03
     odom_scale_min_age: int = 2
     odom_scale_min_points: int = 20
@@ -432,7 +433,7 @@ class CorrelationConfig(_ConfigBase):
         if not isinstance(self.odom_scale, bool):
             raise ValueError(f"odom_scale must be a bool, got {self.odom_scale!r}")
         _check_pos("odom_scale_window_m", self.odom_scale_window_m)
-        _check_nonneg("odom_scale_min_travel_m", self.odom_scale_min_travel_m)
+        _check_nonneg("odom_scale_ramp_m", self.odom_scale_ramp_m)
         _check_nonneg("odom_scale_max", self.odom_scale_max)
         _check_int("odom_scale_min_age", self.odom_scale_min_age, 1)
         _check_int("odom_scale_min_points", self.odom_scale_min_points, 1)

@@ -461,9 +461,11 @@ class OdomScaleEstimator:
     per 2 m step, next to the match's own noise), but the error is the same at every step, so
     the measurements are averaged: :meth:`add` takes each step's odometry travel ``d`` and the
     travel the match measured along it ``m``; the estimate is ``sum m / sum d`` over the last
-    ``window_m`` of travel (exponential forgetting by distance), applied once ``min_travel_m``
-    has been measured, clamped to ``1 +- max_error``. Causal: a step is scaled by what earlier
-    steps measured.
+    ``window_m`` of travel (exponential forgetting by distance), clamped to ``1 +- max_error``,
+    and phased in over the first ``ramp_m`` of travel measured (its departure from 1 applied in
+    proportion to the travel): the first streets' matches are few and correlated, and a street
+    without along-track structure can measure a scale a per cent off. Causal: a step is scaled
+    by what earlier steps measured.
 
     The measurement is taken on the already scaled prediction (``m = scale * d + innovation``),
     so a step without along-track information (a match that stays where it was predicted, a
@@ -479,15 +481,15 @@ class OdomScaleEstimator:
     #: how many standard errors of the ratio shrink its departure from 1 to nothing
     SHRINK_Z = 1.0
 
-    def __init__(self, window_m: float = 1000.0, min_travel_m: float = 50.0, max_error: float = 0.03) -> None:
+    def __init__(self, window_m: float = 1000.0, ramp_m: float = 300.0, max_error: float = 0.03) -> None:
         if not (math.isfinite(window_m) and window_m > 0):
             raise ValueError(f"window_m must be > 0, got {window_m!r}")
-        if not (math.isfinite(min_travel_m) and min_travel_m >= 0):
-            raise ValueError(f"min_travel_m must be >= 0, got {min_travel_m!r}")
+        if not (math.isfinite(ramp_m) and ramp_m >= 0):
+            raise ValueError(f"ramp_m must be >= 0, got {ramp_m!r}")
         if not (math.isfinite(max_error) and max_error >= 0):
             raise ValueError(f"max_error must be >= 0, got {max_error!r}")
         self.window_m = float(window_m)
-        self.min_travel_m = float(min_travel_m)
+        self.ramp_m = float(ramp_m)
         self.max_error = float(max_error)
         self._sum_d = self._sum_m = 0.0
         self._sum_r2 = self._sum_d2 = 0.0  # sum d r^2 (r = m / d) and sum d^2: the spread
@@ -511,14 +513,16 @@ class OdomScaleEstimator:
 
     @property
     def scale(self) -> float:
-        """The scale to apply to odometry translation (1 until ``min_travel_m`` is measured)."""
-        if self.travel_m < self.min_travel_m or self._sum_d <= 0:
+        """The scale to apply to odometry translation (1 before any travel, phased in over
+        ``ramp_m``)."""
+        if self._sum_d <= 0:
             return 1.0
         e = self.raw - 1.0
         if e == 0.0:
             return 1.0
         e *= max(0.0, 1.0 - (self.SHRINK_Z * self.std_error / e) ** 2)
-        return float(min(max(1.0 + e, 1.0 - self.max_error), 1.0 + self.max_error))
+        e = min(max(e, -self.max_error), self.max_error)
+        return float(1.0 + e * min(1.0, self.travel_m / self.ramp_m if self.ramp_m > 0 else 1.0))
 
     def add(self, odom_m: float, measured_m: float) -> None:
         """One step: odometry travel ``odom_m`` (> 0) and the travel measured along it (m)."""

@@ -191,7 +191,7 @@ class CorrectionStage:
         self.clock = StageClock()  # "correlate" (+ weights), "resample" (+ pose estimate), "field"
         c = corr_cfg
         self.odom_scale = (
-            OdomScaleEstimator(c.odom_scale_window_m, c.odom_scale_min_travel_m, c.odom_scale_max)
+            OdomScaleEstimator(c.odom_scale_window_m, c.odom_scale_ramp_m, c.odom_scale_max)
             if c.odom_scale
             else None
         )
