@@ -191,9 +191,7 @@ class CorrectionStage:
         self.clock = StageClock()  # "correlate" (+ weights), "resample" (+ pose estimate), "field"
         c = corr_cfg
         self.odom_scale = (
-            OdomScaleEstimator(c.odom_scale_window_m, c.odom_scale_ramp_m, c.odom_scale_max)
-            if c.odom_scale
-            else None
+            OdomScaleEstimator(c.odom_scale_window_m, c.odom_scale_ramp_m, c.odom_scale_max) if c.odom_scale else None
         )
         self._odom_prev: np.ndarray | None = None  # odometry pose of the last corrected set
         self.seen_at: np.ndarray | None = None  # (H, W) int32: correction that first observed a cell (odom_scale)
