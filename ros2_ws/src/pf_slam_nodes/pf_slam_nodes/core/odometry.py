@@ -522,7 +522,8 @@ class OdomScaleEstimator:
             return 1.0
         e *= max(0.0, 1.0 - (self.SHRINK_Z * self.std_error / e) ** 2)
         e = min(max(e, -self.max_error), self.max_error)
-        return float(1.0 + e * min(1.0, self.travel_m / self.ramp_m if self.ramp_m > 0 else 1.0))
+        phase = min(1.0, self.travel_m / self.ramp_m) if self.ramp_m > 0 else 1.0
+        return float(1.0 + e * phase)
 
     def add(self, odom_m: float, measured_m: float) -> None:
         """One step: odometry travel ``odom_m`` (> 0) and the travel measured along it (m)."""
