@@ -3,16 +3,15 @@ the data, written as +inf, said in the convert summary with the count."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
+from conftest import DATA as SHARED_DATA
 
 from pf_slam_nodes.io.bag import deserialize, read_bag
 from pf_slam_nodes.io.carmen import infer_no_return, read_carmen
 from pf_slam_nodes.io.convert import convert_carmen
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "carmen"
+DATA = SHARED_DATA / "carmen"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"{DATA} not available")
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import DATA as SHARED_DATA
 from rosbags.rosbag2 import Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -31,7 +32,7 @@ from pf_slam_nodes.io.mines import read_mines
 from pf_slam_nodes.io.skips import SkipLog
 
 PF_SLAM = str(Path(sys.executable).with_name("pf-slam"))
-PARAM = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "kaist_sample" / "param"
+PARAM = SHARED_DATA / "kaist_sample" / "param"
 needs_kaist = pytest.mark.skipif(not PARAM.is_dir(), reason=f"{PARAM} not available")
 
 

@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import DATA as SHARED_DATA
 
 from pf_slam_nodes.io.carmen import flaser_angles, read_carmen, stamp_str_to_ns
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "carmen"
+DATA = SHARED_DATA / "carmen"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"{DATA} not available")
 
 

@@ -5,17 +5,15 @@ the converters' `pf_slam.format` metadata (the profile `pf-slam run` picks)."""
 from __future__ import annotations
 
 import gzip
-import os
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import DATA
 
 from pf_slam_nodes.io.bag import bag_info, deserialize, read_bag, stamp_ns_of
 from pf_slam_nodes.io.carmen import read_carmen
 from pf_slam_nodes.io.convert import convert_carmen, convert_mines
 
-DATA = Path(os.environ.get("PF_SLAM_DATA", Path(__file__).resolve().parents[2].parent / "shared" / "data"))
 CORRECTED = DATA / "carmen_corrected"
 
 

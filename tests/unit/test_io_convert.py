@@ -2,17 +2,15 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
+from conftest import DATA
 
 from pf_slam_nodes.io.bag import BagError, bag_info, deserialize, read_bag, stamp_ns_of
 from pf_slam_nodes.io.carmen import read_carmen
 from pf_slam_nodes.io.convert import convert_carmen, convert_mines, laser_offset
 from pf_slam_nodes.io.mines import read_mines
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"{DATA} not available")
 
 

@@ -10,6 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from conftest import DATA
 
 from pf_slam_nodes.core import geometry
 from pf_slam_nodes.core.geometry import quat_to_matrix
@@ -24,7 +25,6 @@ from pf_slam_nodes.io.kaist import (
     register_fog_batch,
 )
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 KAIST = DATA / "kaist_sample"
 PARAM = KAIST / "param"
 needs_data = pytest.mark.skipif(not KAIST.is_dir(), reason=f"{KAIST} not available")

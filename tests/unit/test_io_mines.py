@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import DATA as SHARED_DATA
 
 from pf_slam_nodes.io.mines import MINES_ANGLE_INCREMENT, MINES_ANGLE_MIN, read_mines
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "mines"
+DATA = SHARED_DATA / "mines"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"{DATA} not available")
 
 

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
+from conftest import DATA as SHARED_DATA
 
 from pf_slam_nodes.io.trajectory import read_relations, read_trajectory, write_tum
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "carmen"
+DATA = SHARED_DATA / "carmen"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"{DATA} not available")
 
 

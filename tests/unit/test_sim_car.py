@@ -9,13 +9,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from conftest import DATA as SHARED_DATA
 
 from pf_slam_nodes.io.mapfile import read_map
 from pf_slam_tools.sim import car
 from pf_slam_tools.sim import car_sensors as cs
 from pf_slam_tools.sim.car_params import PARAM_FILES, extrinsic, yaml_matrix
 
-REAL_PARAM = Path(__file__).resolve().parents[3] / "shared" / "data" / "kaist_sample" / "param"
+REAL_PARAM = SHARED_DATA / "kaist_sample" / "param"
 DURATION_S = 30.0
 
 
