@@ -372,24 +372,24 @@ class CorrelationConfig(_ConfigBase):
         calibrated wheels and FOG): the match then bounds the drift without adding its noise.
     odom_scale : bool
         Estimate the odometry's translation scale (a wheel-diameter calibration error) online
-        from the matches and apply it to the predicted sets (:class:`~.odometry.OdomScaleEstimator`):
-        each correction, the match of the predicted set without the motion prior measures the
-        travel along the odometry increment; the estimate is the ratio of measured to odometry
-        travel over the last ``odom_scale_window_m``. Needs the odometry pose with each predicted
-        set. Default False.
+        and apply it to the predicted sets (:class:`~.odometry.OdomScaleEstimator`): each
+        correction's scan is matched against the scan ``odom_scale_baseline_m`` of odometry back
+        (core/scanpair.py; not against the map, which follows the odometry's scale); the estimate
+        is the ratio of measured to odometry travel over the last ``odom_scale_window_m``. Needs
+        the odometry pose with each predicted set. Default False.
     odom_scale_window_m : float
         correlation.odom_scale: travel over which the measurements are averaged (exponential
         forgetting, m).
     odom_scale_ramp_m : float
-        correlation.odom_scale: the estimate's departure from 1 is phased in over this much measured
-        travel (m): applied in proportion to the travel, in full from here on.
+        correlation.odom_scale: the estimate's departure from 1 is phased in over this much travel
+        measured by the scan pairs (m): applied in proportion to it, in full from here on; 0: at once.
     odom_scale_max : float
         correlation.odom_scale: the estimate is clamped to ``1 +- odom_scale_max``.
-    odom_scale_min_age : int
-        correlation.odom_scale: the measurement uses the scan points on map cells first observed
-        at least this many corrections ago.
-    odom_scale_min_points : int
-        correlation.odom_scale: fewer such points: that correction measures nothing.
+    odom_scale_baseline_m : float
+        correlation.odom_scale: odometry travel between the two scans of a pair (m).
+    odom_scale_min_curvature : float
+        correlation.odom_scale: a pair counts only where its cost along the street has a clear
+        minimum: second difference above this (sum of squared match residuals per m^2).
     shadow_jump_m : float
         A beam with a neighbour (within ``shadow_beams`` beams) closer by more than this (m) moves
         no pose (search, refinement) but is scored and mapped: it lies where the background comes
@@ -421,10 +421,10 @@ class CorrelationConfig(_ConfigBase):
     gain_yaw: float = 1.0
     odom_scale: bool = False
     odom_scale_window_m: float = 1000.0
-    odom_scale_ramp_m: float = 300.0
+    odom_scale_ramp_m: float = 0.0
     odom_scale_max: float = 0.03
-    odom_scale_min_age: int = 2
-    odom_scale_min_points: int = 20
+    odom_scale_baseline_m: float = 10.0
+    odom_scale_min_curvature: float = 1000.0
     shadow_jump_m: float = 0.0
     shadow_beams: int = 1
 
@@ -435,8 +435,8 @@ class CorrelationConfig(_ConfigBase):
         _check_pos("odom_scale_window_m", self.odom_scale_window_m)
         _check_nonneg("odom_scale_ramp_m", self.odom_scale_ramp_m)
         _check_nonneg("odom_scale_max", self.odom_scale_max)
-        _check_int("odom_scale_min_age", self.odom_scale_min_age, 1)
-        _check_int("odom_scale_min_points", self.odom_scale_min_points, 1)
+        _check_pos("odom_scale_baseline_m", self.odom_scale_baseline_m)
+        _check_nonneg("odom_scale_min_curvature", self.odom_scale_min_curvature)
         for name in ("gain_xy", "gain_yaw"):
             _check_unit(name, getattr(self, name))
         if not isinstance(self.skip_unknown, bool):

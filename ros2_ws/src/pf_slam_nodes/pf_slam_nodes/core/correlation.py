@@ -649,6 +649,11 @@ def _bilinear_at(
     return val, (a0 + fv * (a1 - a0)) * inv, e * inv, rx, ry
 
 
+def match_residuals(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField) -> np.ndarray:
+    """``(N, M)`` float32 residuals ``1 - M`` (bilinear match likelihood) of the points seen from every pose."""
+    return 1.0 - _bilinear_at(poses, pts, field, field._prob_flat, False, "float32")
+
+
 def _rowdot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``(N,)`` float64 row sums of ``a * b`` for ``(N, M)`` arrays (float32 or float64)."""
     return np.einsum("nm,nm->n", a, b, dtype=np.float64)

@@ -456,32 +456,26 @@ class OdomScaleEstimator:
     """Online estimate of the odometry's translation scale (true travel / odometry travel).
 
     A wheel-diameter calibration error scales every odometry increment's translation by the same
-    factor. Scan matching sees it: a match of the predicted pose against the map moves it along
-    the increment by about ``(scale - 1) * travel``. One match measures it poorly (centimetres
-    per 2 m step, next to the match's own noise), but the error is the same at every step, so
-    the measurements are averaged: :meth:`add` takes each step's odometry travel ``d`` and the
-    travel the match measured along it ``m``; the estimate is ``sum m / sum d`` over the last
-    ``window_m`` of travel (exponential forgetting by distance), clamped to ``1 +- max_error``,
-    and phased in over the first ``ramp_m`` of travel measured (its departure from 1 applied in
-    proportion to the travel): the first streets' matches are few and correlated, and a street
-    without along-track structure can measure a scale a per cent off. Causal: a step is scaled
-    by what earlier steps measured.
+    factor. Each measurement is a pair of scans matched against each other (core/scanpair.py):
+    :meth:`add` takes the pair's odometry travel ``d`` and the travel the match measured ``m``;
+    the estimate is ``sum m / sum d`` over the last ``window_m`` of measured travel (exponential
+    forgetting by distance), clamped to ``1 +- max_error``, and optionally phased in over the
+    first ``ramp_m`` of it (its departure from 1 applied in proportion to the travel measured).
+    Causal: a step is scaled by what earlier pairs measured. A pair measures the scale directly,
+    not relative to the estimate applied (it does not go through the map the filter builds), and
+    where a street has no along-track structure it measures nothing rather than the prediction.
 
-    The measurement is taken on the already scaled prediction (``m = scale * d + innovation``),
-    so a step without along-track information (a match that stays where it was predicted, a
-    long street) measures the current estimate and only slows the averaging down.
-
-    The matches are noisy (tens of centimetres now and then): a step counts at most ``max_error``
-    away from the current ratio, and the ratio's departure from 1 is shrunk by its own standard
-    error ``se`` (from the spread of the steps' ratios and the effective number of steps in the
-    window): ``1 + e * max(0, 1 - (SHRINK_Z * se / e)^2)``, ``e = ratio - 1``. Well-calibrated
-    wheels (``|e|`` within the noise) thus stay at 1 instead of following the noise.
+    A pair can still be wrong by tens of centimetres now and then: a measurement counts at most
+    ``max_error`` away from the current ratio, and the ratio's departure from 1 is shrunk by its
+    own standard error ``se`` (from the spread of the measurements' ratios and the effective
+    number of them in the window): ``1 + e * max(0, 1 - (SHRINK_Z * se / e)^2)``, ``e = ratio -
+    1``. Well-calibrated wheels (``|e|`` within the noise) thus stay at 1.
     """
 
     #: how many standard errors of the ratio shrink its departure from 1 to nothing
     SHRINK_Z = 1.0
 
-    def __init__(self, window_m: float = 1000.0, ramp_m: float = 300.0, max_error: float = 0.03) -> None:
+    def __init__(self, window_m: float = 1000.0, ramp_m: float = 0.0, max_error: float = 0.03) -> None:
         if not (math.isfinite(window_m) and window_m > 0):
             raise ValueError(f"window_m must be > 0, got {window_m!r}")
         if not (math.isfinite(ramp_m) and ramp_m >= 0):

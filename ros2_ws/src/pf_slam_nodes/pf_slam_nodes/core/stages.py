@@ -16,6 +16,7 @@ process it runs in.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import math
 import time
@@ -32,7 +33,7 @@ from .config import (
     OdometryMotionConfig,
     ResampleConfig,
 )
-from .correlation import GridLikelihoodField, correlate, refine
+from .correlation import GridLikelihoodField, correlate
 from .filter import n_eff, resample, update_log_weights
 from .geometry import compose, relative_pose
 from .grid import LogOddsGrid, grid_geometry, grow_array, growth_plan
@@ -42,10 +43,12 @@ from .motion import sample_odometry_motion
 from .mount import mounted_scan
 from .odometry import OdomScaleEstimator
 from .scan import planar_scan, scan_to_points, shadow_beams, sparse_scan_range, transform_points, valid_beams
+from .scanpair import PairScan, pair_scan, pair_travel
 
 MOTION_STREAM = 1
 RESAMPLE_STREAM = 2
 INIT_STREAM = 3  # localization: the initialisation's candidates
+MAX_PAIR_SCANS = 64  # correlation.odom_scale: scans kept for pairing, at most
 
 
 @dataclasses.dataclass
@@ -194,7 +197,7 @@ class CorrectionStage:
             OdomScaleEstimator(c.odom_scale_window_m, c.odom_scale_ramp_m, c.odom_scale_max) if c.odom_scale else None
         )
         self._odom_prev: np.ndarray | None = None  # odometry pose of the last corrected set
-        self.seen_at: np.ndarray | None = None  # (H, W) int32: correction that first observed a cell (odom_scale)
+        self._pairs: collections.deque[PairScan] = collections.deque()  # recent scans to pair (odom_scale)
         self.scale_measurements = 0
         self._move: np.ndarray | None = None  # a closed loop's frame change, for the next set
         self._exact = False  # the next patch is a whole re-rendered grid: the field takes its geometry
@@ -239,7 +242,7 @@ class CorrectionStage:
         """A closed loop moved the map (the mapping stage's re-rendering, loops.*): the field is
         dropped, the next patch (the whole new grid) becomes it, and the next set to correct is
         composed with ``transform`` ``(x, y, yaw)`` into the new frame."""
-        self.field = self.known = self.seen_at = None
+        self.field = self.known = None
         self._move = np.asarray(transform, dtype=np.float64).reshape(3).copy()
         self._exact = True
         self.frame_changes += 1
@@ -269,8 +272,6 @@ class CorrectionStage:
             self.field = GridLikelihoodField(h, w, float(self.grid_cfg.resolution_m), origin, self.corr_cfg)
             if self.corr_cfg.skip_unknown:
                 self.known = np.zeros((h, w), dtype=bool)
-            if self.odom_scale is not None:
-                self.seen_at = np.full((h, w), -1, dtype=np.int32)
         f = self.field
         occ = np.asarray(patch.occupancy)
         c0, r0 = np.rint((np.asarray(patch.origin, float) - f.origin) / f.resolution).astype(np.int64)
@@ -285,8 +286,6 @@ class CorrectionStage:
                 f.grow(add)
                 if self.known is not None:
                     self.known = grow_array(self.known, add, False)
-                if self.seen_at is not None:
-                    self.seen_at = grow_array(self.seen_at, add, -1)
                 r0, c0 = r0 + add[0], c0 + add[2]
         a0, a1 = max(int(r0), 0), min(int(r0) + occ.shape[0], f.height)  # the patch inside the grid
         b0, b1 = max(int(c0), 0), min(int(c0) + occ.shape[1], f.width)
@@ -295,9 +294,6 @@ class CorrectionStage:
         sub = occ[a0 - r0 : a1 - r0, b0 - c0 : b1 - c0]
         if self.known is not None:
             self.known[a0:a1, b0:b1] = sub >= 0
-        if self.seen_at is not None:
-            seen = self.seen_at[a0:a1, b0:b1]
-            seen[(sub >= 0) & (seen < 0)] = self.num_corrections
         return f.set_obstacle_block(a0, b0, sub >= self.corr_cfg.occupied_threshold)
 
     def _observed(self, pts: np.ndarray, pose: np.ndarray) -> np.ndarray:
@@ -349,22 +345,20 @@ class CorrectionStage:
             self.pending_init = None
             self.initialisations += 1
             self.converged_at = None
-        scale, step = 1.0, None
+        scale = 1.0
         if self.odom_scale is not None and odom_pose is not None and not initialising:
             odom = np.asarray(odom_pose, dtype=np.float64).reshape(3)
             if self._odom_prev is not None:
-                delta = relative_pose(self._odom_prev, odom)
                 scale = self.odom_scale.scale
-                particles, step = scaled_increment(particles, delta, scale)
+                particles, _ = scaled_increment(particles, relative_pose(self._odom_prev, odom), scale)
             self._odom_prev = odom
+            self._measure_scale(odom, pts)
         if self.known is not None and pts.shape[0] > 0:
             seen = self._observed(pts, particles[int(np.argmax(log_w))])
             pts = pts[seen]
             match = None if match is None else match[seen]
         matched = self.field is not None and pts.shape[0] > 0
         if matched:
-            if step is not None and self.seen_at is not None:
-                self._measure_scale(pts, particles, log_w, step, scale)
             corr_cfg = self.corr_cfg  # a sparse scan (grid.min_return_fraction): its own, longer cut
             if cut != corr_cfg.range_max_m:
                 corr_cfg = dataclasses.replace(corr_cfg, range_max_m=cut)
@@ -391,33 +385,27 @@ class CorrectionStage:
         self.clock.add("resample", t0)
         return Correction(particles, log_w, pose, resampled, bool(matched), scale)
 
-    def _measure_scale(self, pts, predicted, log_w, step, scale) -> None:
-        """correlation.odom_scale: how far along the odometry increment the scan alone moves the
-        set's predicted mean pose: a refinement without the motion prior, on the scan points that
-        fall on cells first observed at least ``odom_scale_min_age`` corrections ago (points on
-        freshly mapped cells, near the end of the mapped part of a wall, pull the match back along
-        the street). ``step``: each particle's increment direction (N, 2, map frame) and the
-        odometry travel (m). Fewer than ``odom_scale_min_points`` such points: no measurement."""
-        dirs, d = step
+    def _measure_scale(self, odom: np.ndarray, pts: np.ndarray) -> None:
+        """correlation.odom_scale: pair this scan (its points in the vehicle frame, all of them)
+        with the newest kept scan at least ``odom_scale_baseline_m`` of odometry back and add the
+        travel the pair measures to the estimate (core/scanpair.py); then keep this scan and
+        forget those no longer needed."""
         cfg = self.corr_cfg
-        if d <= 0:
+        scan = pair_scan(odom, pts, float(self.grid_cfg.resolution_m), cfg)
+        if scan is None:
             return
-        mean = pose_estimate(predicted, log_w, FilterConfig(pose_estimate="mean"))
-        f = self.field
-        cells = np.floor((transform_points(pts, mean) - f.origin) / f.resolution).astype(np.int64)
-        ok = (cells[:, 0] >= 0) & (cells[:, 0] < f.width) & (cells[:, 1] >= 0) & (cells[:, 1] < f.height)
-        seen = np.full(pts.shape[0], -1, dtype=np.int64)
-        seen[ok] = self.seen_at[cells[ok, 1], cells[ok, 0]]
-        old = pts[(seen >= 0) & (seen <= self.num_corrections - cfg.odom_scale_min_age)]
-        old = old[np.hypot(old[:, 0], old[:, 1]) <= cfg.range_max_m]
-        if old.shape[0] < cfg.odom_scale_min_points:
-            return
-        matched, _ = refine(mean[None, :], old, f, cfg.refine_iterations, cfg.refine_residual, cfg.precision)
-        w = np.exp(log_w - log_w.max())
-        u = w @ dirs / w.sum()
-        u /= max(float(np.hypot(u[0], u[1])), 1e-12)
-        self.odom_scale.add(d, scale * d + float((matched[0, :2] - mean[:2]) @ u))
-        self.scale_measurements += 1
+        base = cfg.odom_scale_baseline_m
+        far = [p for p in self._pairs if math.hypot(*(p.odom[:2] - odom[:2])) >= base]
+        if far:
+            got = pair_travel(far[-1], scan, cfg.odom_scale_max, cfg.odom_scale_min_curvature, cfg.range_max_m)
+            if got is not None:
+                self.odom_scale.add(*got)
+                self.scale_measurements += 1
+            while len(self._pairs) > 1 and math.hypot(*(self._pairs[1].odom[:2] - odom[:2])) >= base:
+                self._pairs.popleft()  # the next one is far enough for the next scan too
+        self._pairs.append(scan)
+        while len(self._pairs) > MAX_PAIR_SCANS:
+            self._pairs.popleft()
 
 
 def scan_in_base(
