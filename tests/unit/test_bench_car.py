@@ -50,17 +50,18 @@ def test_true_fog_bias_per_second_and_table(tmp_path):
         pairs_textured=300,
         pairs_skipped=0,
         colour_error=10.5,
+        colour_error_aligned=8.0,
         coverage=0.8,
         texture_ms_per_pair=120.0,
         texture_ms_stages={"disparity": 40.0, "ground": 30.0},
     )
     assert car.targets_line([tex, dict(tex, colour_error=13.0)]).endswith(
         "; stereo pairs textured 600 of 600 (0 skipped); texture colour error median 11.8, worst 13.0 "
-        "(<= 12 in 1 of 2), coverage median 0.80"
+        "(<= 12 in 1 of 2); aligned as the ATE: median 8.0, worst 8.0 (<= 12 in 2 of 2), coverage median 0.80"
     )
     t = car.format_texture_table([tex]).splitlines()
     assert t[0].endswith("| ms / pair | disparity ms | ground ms |")
-    assert t[2] == "| 3 | 2 | 1 | 300 | 300 | 0 | 10.5 | 0.80 | 120 | 40 | 30 |"
+    assert t[2] == "| 3 | 2 | 1 | 300 | 300 | 0 | 10.5 | 8.0 | 0.80 | 120 | 40 | 30 |"
 
 
 def _images(bag):
@@ -85,7 +86,7 @@ def test_cached_bag_with_images_is_converted_again(tmp_path):
 def test_texture_score_of_a_perfect_and_a_shifted_texture(tmp_path):
     """texture_score reads texture.png (north up, /map geometry) against the floor truth: the truth
     itself, averaged into the run's 0.2 m cells, scores ~0 and covers what the camera saw; the same
-    texture 1 m off scores far worse."""
+    texture 1 m off scores far worse, unless scored with the alignment that moves it back."""
     import cv2
 
     from pf_slam_nodes.core.texture import north_up_bgr
@@ -114,4 +115,6 @@ def test_texture_score_of_a_perfect_and_a_shifted_texture(tmp_path):
     good = car.texture_score(run_dir, data)
     assert good["colour_error"] < 1.0 and good["coverage"] > 0.99, good
     cv2.imwrite(str(run_dir / "texture.png"), north_up_bgr(cells(10)))
-    assert car.texture_score(run_dir, data)["colour_error"] > 5.0 + good["colour_error"]
+    shifted = car.texture_score(run_dir, data, (0.0, np.array([10 * gres, 0.0])))
+    assert shifted["colour_error"] > 5.0 + good["colour_error"]
+    assert shifted["colour_error_aligned"] < 1.0, shifted
