@@ -649,9 +649,10 @@ def _bilinear_at(
     return val, (a0 + fv * (a1 - a0)) * inv, e * inv, rx, ry
 
 
-def match_residuals(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField) -> np.ndarray:
-    """``(N, M)`` float32 residuals ``1 - M`` (bilinear match likelihood) of the points seen from every pose."""
-    return 1.0 - _bilinear_at(poses, pts, field, field._prob_flat, False, "float32")
+def match_cost(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField) -> np.ndarray:
+    """``(N,)`` ``sum (1 - M)^2`` (bilinear match likelihood ``M``, float32) of the points seen from every pose."""
+    r = 1.0 - _bilinear_at(poses, pts, field, field._prob_flat, False, "float32")
+    return _rowdot(r, r)
 
 
 def _rowdot(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .config import CorrelationConfig
-from .correlation import LikelihoodField, build_likelihood_field_from_mask, match_residuals
+from .correlation import LikelihoodField, build_likelihood_field_from_mask, match_cost
 from .geometry import relative_pose
 from .scan import transform_points
 
@@ -41,6 +41,7 @@ CROSS_HALF_M = 0.3
 REACH_MARGIN_M = 10.0
 #: fewer points in either scan: no pair
 MIN_POINTS = 30
+ORIGIN = np.zeros(3)  # relative_pose(p, ORIGIN) is the inverse of p
 
 
 @dataclass(frozen=True)
@@ -69,20 +70,13 @@ def pair_scan(odom: np.ndarray, points: np.ndarray, resolution: float, cfg: Corr
     return PairScan(np.asarray(odom, dtype=np.float64).reshape(3).copy(), pts, field)
 
 
-def _inverse(poses: np.ndarray) -> np.ndarray:
-    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-    x, y = poses[:, 0], poses[:, 1]
-    return np.stack([-(c * x + s * y), s * x - c * y, -poses[:, 2]], axis=1)
-
-
 def _profile(rel, u, v, along, cross, new_pts, old_pts, old: PairScan, new: PairScan) -> np.ndarray:
     """``(len(along), len(cross))`` symmetric cost of the candidates ``rel + a u + c v``."""
     a, c = np.meshgrid(along, cross, indexing="ij")
     cands = np.repeat(rel[None, :], a.size, axis=0)
     cands[:, :2] += a.reshape(-1, 1) * u + c.reshape(-1, 1) * v
-    r_new = match_residuals(cands, new_pts, old.field)  # new scan on the old field
-    r_old = match_residuals(_inverse(cands), old_pts, new.field)  # old scan on the new field
-    cost = np.einsum("nm,nm->n", r_new, r_new, dtype=np.float64) + np.einsum("nm,nm->n", r_old, r_old, dtype=np.float64)
+    cost = match_cost(cands, new_pts, old.field)  # new scan on the old field
+    cost += match_cost(relative_pose(cands, ORIGIN), old_pts, new.field)  # old on the new: inverse poses
     return cost.reshape(a.shape)
 
 
@@ -102,7 +96,7 @@ def pair_travel(
     v = np.array([-u[1], u[0]])
     in_old = transform_points(new.points, rel)
     new_pts = new.points[np.hypot(in_old[:, 0], in_old[:, 1]) <= reach]
-    in_new = transform_points(old.points, _inverse(rel[None, :])[0])
+    in_new = transform_points(old.points, relative_pose(rel, ORIGIN))
     old_pts = old.points[(in_new[:, 0] >= 1.0) & (np.hypot(in_new[:, 0], in_new[:, 1]) <= reach)]
     if new_pts.shape[0] < MIN_POINTS or old_pts.shape[0] < MIN_POINTS:
         return None

@@ -350,7 +350,7 @@ class CorrectionStage:
             odom = np.asarray(odom_pose, dtype=np.float64).reshape(3)
             if self._odom_prev is not None:
                 scale = self.odom_scale.scale
-                particles, _ = scaled_increment(particles, relative_pose(self._odom_prev, odom), scale)
+                particles = scaled_increment(particles, relative_pose(self._odom_prev, odom), scale)
             self._odom_prev = odom
             self._measure_scale(odom, pts)
         if self.known is not None and pts.shape[0] > 0:
@@ -394,15 +394,18 @@ class CorrectionStage:
         scan = pair_scan(odom, pts, float(self.grid_cfg.resolution_m), cfg)
         if scan is None:
             return
-        base = cfg.odom_scale_baseline_m
-        far = [p for p in self._pairs if math.hypot(*(p.odom[:2] - odom[:2])) >= base]
-        if far:
-            got = pair_travel(far[-1], scan, cfg.odom_scale_max, cfg.odom_scale_min_curvature, cfg.range_max_m)
+        far = [math.hypot(*(p.odom[:2] - odom[:2])) >= cfg.odom_scale_baseline_m for p in self._pairs]
+        if any(far):
+            last = len(far) - 1 - far[::-1].index(True)  # the newest kept scan far enough back
+            got = pair_travel(
+                self._pairs[last], scan, cfg.odom_scale_max, cfg.odom_scale_min_curvature, cfg.range_max_m
+            )
             if got is not None:
                 self.odom_scale.add(*got)
                 self.scale_measurements += 1
-            while len(self._pairs) > 1 and math.hypot(*(self._pairs[1].odom[:2] - odom[:2])) >= base:
-                self._pairs.popleft()  # the next one is far enough for the next scan too
+            while len(far) > 1 and far[1]:  # the next one is far enough for the next scan too
+                self._pairs.popleft()
+                far.pop(0)
         self._pairs.append(scan)
         while len(self._pairs) > MAX_PAIR_SCANS:
             self._pairs.popleft()
@@ -424,25 +427,18 @@ def scan_in_base(
     return mounted_scan(ranges, angles, laser, extrinsic, range_min, range_max)
 
 
-def scaled_increment(particles: np.ndarray, delta: np.ndarray, scale: float) -> tuple[np.ndarray, tuple]:
+def scaled_increment(particles: np.ndarray, delta: np.ndarray, scale: float) -> np.ndarray:
     """Predicted particles whose odometry increment ``delta`` (the odometry frame's, (3,)) had its
     translation scaled by ``scale``: each particle moves by ``(scale - 1) * delta_xy`` in the frame
-    of its heading before the increment. Returns the particles and ``(dirs, travel)``: each
-    particle's increment direction (N, 2, map frame) and the odometry travel (m)."""
-    d = float(math.hypot(delta[0], delta[1]))
-    phi = particles[:, 2] - delta[2]
-    c, s = np.cos(phi), np.sin(phi)
+    of its heading before the increment."""
     out = particles.copy()
     if scale != 1.0:
+        phi = particles[:, 2] - delta[2]
+        c, s = np.cos(phi), np.sin(phi)
         k = scale - 1.0
         out[:, 0] += k * (c * delta[0] - s * delta[1])
         out[:, 1] += k * (s * delta[0] + c * delta[1])
-    if d > 0:
-        ux, uy = delta[0] / d, delta[1] / d
-        dirs = np.stack([c * ux - s * uy, s * ux + c * uy], axis=1)
-    else:
-        dirs = np.zeros((particles.shape[0], 2))
-    return out, (dirs, d)
+    return out
 
 
 def pose_estimate(particles: np.ndarray, log_w: np.ndarray, cfg: FilterConfig) -> np.ndarray:
