@@ -230,10 +230,8 @@ class GridConfig(_ConfigBase):
         (:func:`~.scan.sparse_scan_range`): open outdoor spaces, where most returns are far.
         The indoor profile's 0.25 changes no scan of the CARMEN logs. 0 (default): fixed ranges.
     graze_margin_m : float
-        A beam that grazes a surface (incidence ``a`` from the normal, the surface through its
-        neighbours' ends) leaves the last ``floor(1/sin(a)) - 1`` cells before its end unchanged,
-        at most this length (m): walls and pillars grazed by later rays stay in the map. 0: every
-        beam clears up to its end cell (the seeds' behaviour).
+        A beam grazing a surface (incidence ``a`` from the normal) leaves the last
+        ``floor(1/sin(a)) - 1`` cells before its end unchanged, at most this length (m). 0: off.
     surface_fill_m : float
         The segment between two neighbouring beams' ends is marked as hit cells too when it is
         at most this long (m) and both ends lie on one smooth surface (each end collinear with
@@ -242,12 +240,14 @@ class GridConfig(_ConfigBase):
         to the last scan's dots (the matches lagged along corridors). 0 (default): hits at the
         beams' ends only. The indoor profile's 1.0: docs/architecture.md, "Walls as lines".
     peak_ratio : float
-        The correlator matches against the occupied cells that hold at least this fraction of
-        the beam ends of their 4-neighbour with the most (counted per cell): a wall that noisy
-        ranges spread over two cells is matched at its peak, not as a two-cell plateau (whose
-        far side, mapped from overshooting beams, pulls the matches ahead). ``/map`` is not
-        changed. 0 (default, every profile): every occupied cell; 0.5 removes the simulated
-        worlds' drift but costs some real logs (docs/architecture.md, "Walls at their peak").
+        The correlator matches only the occupied cells holding at least this fraction of the beam
+        ends of their 4-neighbour with the most (``/map`` unchanged). 0 (default): every occupied
+        cell (docs/architecture.md, "Walls at their peak": measured, off).
+    free_stop_cells : int
+        The free trace of a beam that ends in a hit stops this many cells before the cell in
+        front of its end. 0 (default): it clears up to that cell, so noisy ends leave a wall's
+        far side occupied and its near side cleared, and matches run ahead. The indoor
+        profile's 1: docs/architecture.md, "Walls on both sides of the noise".
     max_cells : int
         Bound on the grown grid (cells, rows x columns; the mapper's grid and the correlator's
         likelihood field take ~19 bytes per cell together). A scan reaching beyond what this
@@ -270,6 +270,7 @@ class GridConfig(_ConfigBase):
     graze_margin_m: float = 0.0
     surface_fill_m: float = 0.0
     peak_ratio: float = 0.0
+    free_stop_cells: int = 0
 
     def __post_init__(self) -> None:
         _check_pos("resolution_m", self.resolution_m)
@@ -294,6 +295,7 @@ class GridConfig(_ConfigBase):
         _check_nonneg("graze_margin_m", self.graze_margin_m)
         _check_nonneg("surface_fill_m", self.surface_fill_m)
         _check_unit("peak_ratio", self.peak_ratio)
+        _check_int("free_stop_cells", self.free_stop_cells, 0)
         if self.size_x_m / self.resolution_m > 50000 or self.size_y_m / self.resolution_m > 50000:
             raise ValueError(
                 f"size_x_m/size_y_m too large for resolution_m={self.resolution_m!r}: "

@@ -345,8 +345,11 @@ class LogOddsGrid:
         # DDA: one sample per cell along the major axis; endpoint included only for no-hit beams
         n = np.maximum(np.ceil(np.maximum(np.abs(ex - sx), np.abs(ey - sy))).astype(np.int64), 1)
         counts = n + (~is_hit).astype(np.int64)
+        spare = self.cfg.free_stop_cells  # cells before a hit beam's end its free trace leaves alone
         if self.cfg.graze_margin_m > 0 and is_hit.sum() >= 3:
-            counts = np.where(is_hit, np.maximum(n - self._graze_cells(ex, ey, sx, sy, is_hit), 0), counts)
+            spare = np.maximum(spare, self._graze_cells(ex, ey, sx, sy, is_hit))
+        if np.any(spare):
+            counts = np.where(is_hit, np.maximum(n - spare, 0), counts)
         total = int(counts.sum())
         beam = np.repeat(np.arange(r.size), counts)
         start = np.cumsum(counts) - counts
