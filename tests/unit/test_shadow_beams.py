@@ -31,8 +31,12 @@ def test_negative_values_are_refused():
 
 
 def test_matches_no_longer_run_ahead_along_a_pillared_corridor():
-    drift_off, jitter_off = along_track_drift({"correlation.shadow_jump_m": 0.0, "grid.peak_ratio": 0.0, "grid.free_stop_cells": 0})
-    drift_on, jitter_on = along_track_drift({"correlation.shadow_jump_m": 0.3, "grid.peak_ratio": 0.0, "grid.free_stop_cells": 0})
+    drift_off, jitter_off = along_track_drift(
+        {"correlation.shadow_jump_m": 0.0, "grid.peak_ratio": 0.0, "grid.free_stop_cells": 0}
+    )
+    drift_on, jitter_on = along_track_drift(
+        {"correlation.shadow_jump_m": 0.3, "grid.peak_ratio": 0.0, "grid.free_stop_cells": 0}
+    )
     assert drift_off > 0.12 and jitter_off > 0.014  # 90 m of corridor: 0.19 m ahead, 17 mm per scan
     assert abs(drift_on) < 0.08 and jitter_on < 0.011  # 0.04 m, 8 mm
 
