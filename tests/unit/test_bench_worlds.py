@@ -54,3 +54,34 @@ def test_simulated_drives_close_their_loop_and_keep_off_the_walls():
         # the drive passes its start again (a loop to close)
         late = truth[len(truth) // 2 :, :2]
         assert np.hypot(late[:, 0], late[:, 1]).min() < 1.0
+
+
+def test_range_noise_changes_only_the_ranges_and_has_its_own_section():
+    from pf_slam_tools.sim.indoor import ray_cast
+
+    quiet, loud = sim.simulate_world("office", 1, range_sigma_m=0.0), sim.simulate_world("office", 1, 0.03)
+    assert np.array_equal(quiet.truth, loud.truth) and np.array_equal(quiet.odom, loud.odom)
+    exact = ray_cast(quiet.truth, quiet.angles, quiet.world.segments, quiet.range_max).reshape(quiet.ranges.shape)
+    both = np.isfinite(quiet.ranges) & np.isfinite(loud.ranges) & (exact < quiet.range_max - 0.2)
+    assert np.allclose(quiet.ranges[both], exact[both], atol=1e-5)  # float32 ranges, no noise
+    assert abs(np.std(loud.ranges[both] - exact[both]) - 0.03) < 0.002
+    default = sim.simulate_world("office", 1)
+    assert abs(np.std(default.ranges[both] - exact[both]) - 0.01) < 0.001  # the simulator's own 1 cm
+    assert worlds.section(["ring", "corridors"]) == ("worlds_sim", "simulated buildings with ground truth")
+    part, title = worlds.section(["ring"], 0.03)
+    assert part == "worlds_sim_noise30mm" and "3 cm" in title
+
+
+def test_range_noise_is_refused_for_real_scans_and_bad_values():
+    import pytest
+
+    with pytest.raises(ValueError, match="edmonton.*real scans"):
+        worlds.check_noise(["ring", "edmonton"], 0.03)
+    with pytest.raises(ValueError, match="real scans"):
+        worlds.check_noise(None, 0.02)  # every world: the buildings among them
+    with pytest.raises(ValueError, match=">= 0"):
+        worlds.check_noise(["ring"], -0.01)
+    with pytest.raises(ValueError, match="range_sigma_m"):
+        sim.simulate_world("office", 0, float("nan"))
+    worlds.check_noise(["ring", "office"], 0.0)
+    worlds.check_noise(["edmonton"], None)

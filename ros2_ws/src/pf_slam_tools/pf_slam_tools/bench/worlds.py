@@ -167,10 +167,12 @@ def building_drive(data_dir: Path, name: str, seed: int, _cache: dict = {}) -> D
     return Drive(name, truth, synthesise_odometry(truth, rng), ranges, angles, rmax)
 
 
-def sim_drive(name: str, seed: int) -> Drive:
+def sim_drive(name: str, seed: int, range_sigma_m: float | None = None) -> Drive:
+    """Simulated world ``name`` with ``seed``; ``range_sigma_m``: the laser's range noise (m;
+    None: the simulator's 0.01)."""
     from pf_slam_tools.sim.worlds import simulate_world
 
-    d = simulate_world(name, seed)
+    d = simulate_world(name, seed) if range_sigma_m is None else simulate_world(name, seed, range_sigma_m)
     r = [row.astype(np.float64) for row in d.ranges]
     return Drive(name, d.truth, d.odom, r, [d.angles] * len(r), d.range_max)
 
@@ -193,12 +195,18 @@ def run_drive(drive: Drive, seed: int, overrides: dict | None = None) -> tuple[n
 
 
 def bench(
-    data_dir: Path | None, names, seeds, overrides: dict | None = None, out_dir: Path | None = None, log=print
+    data_dir: Path | None,
+    names,
+    seeds,
+    overrides: dict | None = None,
+    out_dir: Path | None = None,
+    log=print,
+    range_sigma_m: float | None = None,
 ) -> list[dict]:
     rows = []
     for name in names:
         for seed in seeds:
-            drive = sim_drive(name, seed) if name in SIM_WORLDS else building_drive(data_dir, name, seed)
+            drive = sim_drive(name, seed, range_sigma_m) if name in SIM_WORLDS else building_drive(data_dir, name, seed)
             est, info = run_drive(drive, seed, overrides)
             odo = score(drive.odom, drive.truth)
             row = {
@@ -211,7 +219,7 @@ def bench(
             }
             rows.append(row)
             if out_dir is not None:
-                np.savetxt(Path(out_dir) / f"{name}_seed{seed}.txt", est, fmt="%.6f")
+                np.savetxt(Path(out_dir) / f"{name}{_noise_tag(range_sigma_m)}_seed{seed}.txt", est, fmt="%.6f")
             log(
                 f"{name} seed {seed}: ATE {row['ate_rmse']:.3f} m (max {row['ate_max']:.2f}), relations "
                 f"{row['rel_mean']:.3f} m, {100 * row['rel_over_05']:.1f} % > 0.5 m, {row['wall_s']:.1f} s"
@@ -252,9 +260,33 @@ def summary_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def section(names) -> tuple[str, str]:
+def _noise_tag(range_sigma_m: float | None) -> str:
+    """``""`` for the simulator's own range noise, else ``"_noise30mm"`` (file and section names)."""
+    return "" if range_sigma_m is None else f"_noise{1000 * range_sigma_m:g}mm"
+
+
+def check_noise(names, range_sigma_m: float | None) -> None:
+    """A range noise applies to the simulated worlds only: refuse it with a building."""
+    if range_sigma_m is None:
+        return
+    if not (np.isfinite(range_sigma_m) and range_sigma_m >= 0):
+        raise ValueError(f"--range-noise must be a finite number >= 0 (m), got {range_sigma_m!r}")
+    real = [n for n in (names or (BUILDINGS + SIM_WORLDS)) if n not in SIM_WORLDS]
+    if real:
+        raise ValueError(
+            f"--range-noise sets the simulated laser's noise, and {', '.join(real)}: real scans, "
+            f"not simulated (use --datasets with {', '.join(SIM_WORLDS)} only)"
+        )
+
+
+def section(names, range_sigma_m: float | None = None) -> tuple[str, str]:
     """The results section and its title for a run over ``names`` (None: every world)."""
     names = set(names or (BUILDINGS + SIM_WORLDS))
+    if names <= set(SIM_WORLDS) and range_sigma_m is not None:
+        return (
+            "worlds_sim" + _noise_tag(range_sigma_m),
+            f"simulated buildings with ground truth, range noise {100 * range_sigma_m:g} cm",
+        )
     if names <= set(SIM_WORLDS):
         return "worlds_sim", "simulated buildings with ground truth"
     if names <= set(BUILDINGS):
@@ -263,15 +295,24 @@ def section(names) -> tuple[str, str]:
 
 
 def main(
-    data_dir: str, out_dir: str, names=None, seeds=(0, 1, 2, 3, 4), sim_seeds=None, overrides: dict | None = None
+    data_dir: str,
+    out_dir: str,
+    names=None,
+    seeds=(0, 1, 2, 3, 4),
+    sim_seeds=None,
+    overrides: dict | None = None,
+    range_sigma_m: float | None = None,
 ) -> str:
+    """Every world of ``names`` over ``seeds``; ``range_sigma_m``: the simulated worlds' range
+    noise (m; None: the simulator's 0.01; refused with a building)."""
+    check_noise(names, range_sigma_m)
     out = Path(out_dir) / "worlds"
     out.mkdir(parents=True, exist_ok=True)
     names = list(names or (BUILDINGS + SIM_WORLDS))
     rows = []
     for name in names:
         s = sim_seeds if (name in SIM_WORLDS and sim_seeds) else seeds
-        rows += bench(Path(data_dir), [name], s, overrides, out)
+        rows += bench(Path(data_dir), [name], s, overrides, out, range_sigma_m=range_sigma_m)
     text = (
         "Median and worst over the seeds:\n\n"
         + summary_table(rows)
@@ -284,7 +325,7 @@ def main(
         "Relations: every 10th scan to 10 and 100 scans later, and to its revisit (nearest scan 300 or more "
         "scans later within 3 m)."
     )
-    part = section(names)[0]
+    part = section(names, range_sigma_m)[0]
     (out / f"{part}.md").write_text(text + "\n")
     (out / f"{part}.json").write_text(json.dumps(rows, indent=2) + "\n")
     return text

@@ -448,8 +448,9 @@ def simulate_scans(
     segments: np.ndarray,
     rng: np.random.Generator,
     mount: tuple[np.ndarray, np.ndarray] | None = None,
+    range_sigma_m: float = RANGE_SIGMA_M,
 ) -> np.ndarray:
-    """Laser ranges at ``poses``: ray cast, ``N(0, RANGE_SIGMA_M^2)`` noise, dropouts.
+    """Laser ranges at ``poses``: ray cast, ``N(0, range_sigma_m^2)`` noise, dropouts.
 
     ``mount``: the laser's ``(R, t)`` in the base frame (its scan plane horizontal: upright or
     upside down, which mirrors the beams); default at the base origin.
@@ -474,7 +475,7 @@ def simulate_scans(
         )
         angles = math.copysign(1.0, rot[2, 2]) * angles
     r = ray_cast(poses, angles, segments, RANGE_MAX_M).reshape(-1, N_BEAMS)
-    r = r + RANGE_SIGMA_M * rng.normal(size=r.shape)
+    r = r + range_sigma_m * rng.normal(size=r.shape)
     r[rng.random(size=r.shape) < DROPOUT_PROB] = np.inf
     r[r > RANGE_MAX_M] = np.inf
     return r.astype(np.float32)

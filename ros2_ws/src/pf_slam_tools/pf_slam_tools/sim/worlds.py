@@ -134,7 +134,7 @@ def _drive(pieces: np.ndarray, speed: float, laps: float, rng: np.random.Generat
     return p
 
 
-def _scan(truth: np.ndarray, world: IndoorWorld, rng: np.random.Generator) -> np.ndarray:
+def _scan(truth: np.ndarray, world: IndoorWorld, rng: np.random.Generator, range_sigma_m: float) -> np.ndarray:
     """Laser ranges at ``truth`` poses, ray cast against the segments near each chunk of poses."""
     seg = world.segments
     out = np.empty((len(truth), indoor.N_BEAMS), dtype=np.float32)
@@ -148,7 +148,7 @@ def _scan(truth: np.ndarray, world: IndoorWorld, rng: np.random.Generator) -> np
             & (np.maximum(seg[:, 1], seg[:, 3]) >= lo[1])
             & (np.minimum(seg[:, 1], seg[:, 3]) <= hi[1])
         )
-        out[k0 : k0 + 50] = indoor.simulate_scans(pk, seg[near], rng)
+        out[k0 : k0 + 50] = indoor.simulate_scans(pk, seg[near], rng, range_sigma_m=range_sigma_m)
     return out
 
 
@@ -178,8 +178,11 @@ def _ring(rng: np.random.Generator) -> tuple[IndoorWorld, np.ndarray]:
 WORLDS = {"office": _office, "corridors": _corridors, "ring": _ring}
 
 
-def simulate_world(name: str, seed: int) -> SimDrive:
-    """Drive world ``name`` with ``seed`` (drive, odometry, laser: independent streams)."""
+def simulate_world(name: str, seed: int, range_sigma_m: float = indoor.RANGE_SIGMA_M) -> SimDrive:
+    """Drive world ``name`` with ``seed`` (drive, odometry, laser: independent streams); the
+    laser's range noise has std ``range_sigma_m`` (m; the same drive and odometry at any value)."""
+    if not (math.isfinite(range_sigma_m) and range_sigma_m >= 0):
+        raise ValueError(f"range_sigma_m must be a finite number >= 0 (m), got {range_sigma_m!r}")
     if name not in WORLDS:
         raise ValueError(f"unknown simulated world {name!r}; known: {', '.join(WORLDS)}")
     drive_rng, odom_rng, laser_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(3))
@@ -191,7 +194,7 @@ def simulate_world(name: str, seed: int) -> SimDrive:
         seed=int(seed),
         truth=truth[idx],
         odom=odom[idx],
-        ranges=_scan(truth[idx], world, laser_rng),
+        ranges=_scan(truth[idx], world, laser_rng, range_sigma_m),
         angles=indoor.beam_angles(),
         range_max=indoor.RANGE_MAX_M,
         world=world,
