@@ -16,11 +16,12 @@ from pf_slam_nodes.core.config import GridConfig
 from pf_slam_nodes.core.grid import LogOddsGrid
 
 
-def _free_cells(stop: int) -> set:
+def _free_cells(stop: int) -> tuple[set, int]:
+    """The columns one beam along +x cleared, and the column of its end."""
     g = LogOddsGrid(GridConfig(resolution_m=0.1, size_x_m=4.0, size_y_m=4.0, free_stop_cells=stop))
     pose = np.array([-1.45, 0.05, 0.0])  # mid-cell, beams along +x
     g.integrate_scan(pose, np.array([1.0]), np.zeros(1))
-    rows, cols = np.nonzero(g.log_odds < 0)
+    _, cols = np.nonzero(g.log_odds < 0)
     return {int(c) for c in cols}, int(g.world_to_cell(np.array([-0.45, 0.05]))[0])
 
 
