@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 
+from pf_slam_nodes.core import loops
 from pf_slam_nodes.core.config import (
     CorrelationConfig,
     FilterConfig,
@@ -17,7 +18,7 @@ from pf_slam_nodes.core.config import (
     ResampleConfig,
 )
 from pf_slam_nodes.core.geometry import compose, relative_pose, wrap_angle
-from pf_slam_nodes.core.loops import LoopCloser, match_submaps, scan_polygon
+from pf_slam_nodes.core.loops import LoopCloser, match_submaps, min_inliers, scan_polygon
 from pf_slam_nodes.core.posegraph import edge_errors, optimize
 from pf_slam_nodes.core.stages import CorrectionStage, MapPatch, MappingStage
 
@@ -213,6 +214,43 @@ def test_loop_closer_pulls_a_drifting_trajectory_back():
     after = np.hypot(*(out[:, :2] - truth[:, :2]).T)
     assert before[-20:].mean() > 0.5
     assert after[-20:].mean() < 0.3 * before[-20:].mean()
+
+
+def test_a_wider_search_needs_more_inliers():
+    """Look-elsewhere: the best of many wrong poses fits better, so the inlier share a match
+    needs grows with the search volume; up to the reference volume it is ``min_inliers``."""
+    cfg = LoopClosureConfig(enabled=True)
+    assert min_inliers(cfg, 1.0) == cfg.min_inliers
+    need = [min_inliers(cfg, w) for w in (2.0, 4.0, 6.0, 10.0)]
+    assert need == sorted(need) and need[-1] > 0.55  # the campus's wrong 10 m loops had 0.50-0.52
+    assert min_inliers(LoopClosureConfig(window_rad=0.12), 4.0) == cfg.min_inliers
+    assert min_inliers(LoopClosureConfig(window_rad=0.03), 6.0) == cfg.min_inliers  # the car's window
+    off = LoopClosureConfig(look_elsewhere=0.0)
+    assert min_inliers(off, 10.0) == off.min_inliers
+
+
+@pytest.mark.parametrize(("window", "kept"), [(2.0, True), (10.0, False)])
+def test_a_loop_closer_refuses_a_weak_match_from_a_wide_search(monkeypatch, window, kept):
+    """The same match (54 % inliers, no rival) closes the loop from a 2 m search and is refused
+    from a 10 m one."""
+    calls = []
+
+    def match(query, ref, polys, guess, window_m, cfg):
+        calls.append(window_m)
+        return np.asarray(guess, dtype=float), 0.54, 0.54, 0.0, -1.0
+
+    monkeypatch.setattr(loops, "match_submaps", match)
+    cfg = LoopClosureConfig(
+        enabled=True, min_loop_travel_m=10.0, submap_m=4.0, window_min_m=window, window_max_m=window
+    )
+    lc = LoopCloser(cfg)
+    square = [(x, 0.0) for x in range(6)] + [(5.0, y) for y in range(1, 6)]
+    square += [(x, 5.0) for x in range(4, -1, -1)] + [(0.0, y) for y in range(4, -2, -1)]
+    pts = np.array([[1.0, 1.0], [2.0, -1.0], [3.0, 0.5]])
+    for k, (x, y) in enumerate(square):
+        lc.add(float(k), np.array([x, y, 0.0]), pts, scan_polygon(np.zeros(2), pts))
+    assert calls and calls[0] == window
+    assert (len(lc.loops) > 0) is kept and (lc.rejected == 0) is kept
 
 
 # --------------------------------------------------------------------------- stages

@@ -664,14 +664,10 @@ class LocalizationConfig(_ConfigBase):
     initial_sigma_yaw_rad: float = 0.2618
 
     def __post_init__(self) -> None:
-        _check_int("init_particles", self.init_particles, 1)
-        _check_pos("global_candidates_per_m2", self.global_candidates_per_m2)
-        _check_int("max_candidates", self.max_candidates, 1)
-        _check_int("pose_candidates", self.pose_candidates, 1)
-        _check_pos("coarse_sigma_m", self.coarse_sigma_m)
-        _check_int("coarse_beams", self.coarse_beams, 1)
-        _check_pos("converged_xy_m", self.converged_xy_m)
-        _check_pos("converged_yaw_rad", self.converged_yaw_rad)
+        for name in ("init_particles", "max_candidates", "pose_candidates", "coarse_beams"):
+            _check_int(name, getattr(self, name), 1)
+        for name in ("global_candidates_per_m2", "coarse_sigma_m", "converged_xy_m", "converged_yaw_rad"):
+            _check_pos(name, getattr(self, name))
         if not isinstance(self.use_initial_pose, bool):
             raise ValueError(f"use_initial_pose must be a bool, got {self.use_initial_pose!r}")
         for name in ("initial_pose_x_m", "initial_pose_y_m", "initial_pose_yaw_rad"):
@@ -726,6 +722,8 @@ class LoopClosureConfig(_ConfigBase):
         or more away (a corridor of identical doors has several) by at least this.
     ambiguity_m : float
         Distance (m) beyond which a candidate is a rival match.
+    look_elsewhere, look_elsewhere_m, look_elsewhere_rad : float
+        ``min_inliers`` + this per e-fold of a search's volume beyond ``_m`` x ``_rad`` (half-widths).
     seq_sigma_xy_m, seq_sigma_xy_per_m : float
         Std (m, m per m) of the translation between consecutive keyframes as the filter has it,
         along the direction of travel ...
@@ -753,8 +751,8 @@ class LoopClosureConfig(_ConfigBase):
     loop_every_m: float = 2.0
     window_min_m: float = 0.6
     window_per_m: float = 0.03
-    window_max_m: float = 4.0
-    window_rad: float = 0.12
+    window_max_m: float = 10.0
+    window_rad: float = 0.25
     resolution_m: float = 0.05
     coarse_m: float = 0.2
     sigma_m: float = 0.05
@@ -765,6 +763,9 @@ class LoopClosureConfig(_ConfigBase):
     max_contradictions: float = 0.05
     min_margin: float = 0.15
     ambiguity_m: float = 1.0
+    look_elsewhere: float = 0.03
+    look_elsewhere_m: float = 4.0
+    look_elsewhere_rad: float = 0.12
     seq_sigma_xy_m: float = 0.01
     seq_sigma_xy_per_m: float = 0.01
     seq_sigma_lateral_per_m: float = 0.01
@@ -782,16 +783,16 @@ class LoopClosureConfig(_ConfigBase):
         for name in (
             *("keyframe_m", "keyframe_rad", "submap_m", "loop_every_m", "window_max_m", "window_rad"),
             *("resolution_m", "coarse_m", "sigma_m", "max_range_m", "ambiguity_m", "cauchy", "max_chi2"),
-            *("seq_sigma_xy_m", "seq_sigma_rad", "loop_sigma_xy_m", "loop_sigma_rad"),
+            *("seq_sigma_xy_m", "seq_sigma_rad", "loop_sigma_xy_m", "loop_sigma_rad", "look_elsewhere_m"),
+            "look_elsewhere_rad",
         ):
             _check_pos(name, getattr(self, name))
         for name in (
-            *("min_loop_travel_m", "window_min_m", "window_per_m", "min_margin", "rebuild_m"),
+            *("min_loop_travel_m", "window_min_m", "window_per_m", "min_margin", "rebuild_m", "look_elsewhere"),
             *("seq_sigma_xy_per_m", "seq_sigma_lateral_per_m", "seq_sigma_rad_per_m"),
         ):
             _check_nonneg(name, getattr(self, name))
-        _check_int("max_points", self.max_points, 30)
-        _check_int("candidates", self.candidates, 1)
+        _check_int("max_points", self.max_points, 30), _check_int("candidates", self.candidates, 1)
         for name in ("min_inliers", "max_contradictions"):
             _check_finite(name, getattr(self, name))
             _check_unit(name, getattr(self, name))

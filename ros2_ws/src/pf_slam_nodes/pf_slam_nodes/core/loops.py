@@ -16,9 +16,9 @@ field over a window that grows with the travel since the last closed loop, then 
 candidates are refined on a fine field (Gauss-Newton). A query point scores +1 within
 ``2 sigma`` of a reference point (an inlier), -1 in the free space the reference's scans saw
 (a contradiction: a wall where the earlier visit saw through), 0 where the reference saw
-nothing; the best candidate needs ``min_inliers``, at most ``max_contradictions``, and must beat
-every candidate ``ambiguity_m`` or more away by ``min_margin`` (a corridor of identical doors
-has several). The solution drops loop edges that disagree with the rest (``max_chi2``).
+nothing; the best candidate needs ``min_inliers`` (more in a wide search: :func:`min_inliers`),
+at most ``max_contradictions``, and must beat every candidate ``ambiguity_m`` or more away by
+``min_margin`` (a corridor of identical doors has several). The solution drops loop edges that disagree with the rest (``max_chi2``).
 
 Frames: the poses given to :meth:`LoopCloser.add` are the filter's in one fixed frame, the *raw*
 frame (the stages keep the filter's own frame changes out of it: core/stages.py). The
@@ -53,6 +53,15 @@ class LoopEdge:
     z: np.ndarray  # (3,) pose of cur in ref's frame
     score: float
     rival: float
+
+
+def min_inliers(cfg: LoopClosureConfig, window_m: float) -> float:
+    """The inlier share a match over a ``window_m`` half-width (and ``cfg.window_rad``) needs:
+    ``min_inliers``, plus ``look_elsewhere`` per e-fold of the search volume beyond
+    ``look_elsewhere_m`` x ``look_elsewhere_rad`` (the more poses searched, the better the best
+    wrong one fits: the outdoor campus, at 10 m / 0.25 rad, matched a place 10.5 m off at 0.50-0.52)."""
+    ratio = (window_m / cfg.look_elsewhere_m) ** 2 * (cfg.window_rad / cfg.look_elsewhere_rad)
+    return cfg.min_inliers + cfg.look_elsewhere * max(0.0, math.log(ratio))
 
 
 def _voxel(points: np.ndarray, size: float) -> np.ndarray:
@@ -329,7 +338,7 @@ class LoopCloser:
         if m is None:
             return False
         pose, score, inl, con, rival = m
-        kept = inl >= cfg.min_inliers and con <= cfg.max_contradictions and score - rival >= cfg.min_margin
+        kept = inl >= min_inliers(cfg, window) and con <= cfg.max_contradictions and score - rival >= cfg.min_margin
         self.log.append((k, j, pose, score, inl, con, rival, kept))
         if not kept:
             self.rejected += 1
