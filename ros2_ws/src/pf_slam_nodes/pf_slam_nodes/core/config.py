@@ -688,8 +688,7 @@ class LoopClosureConfig(_ConfigBase):
     enabled : bool
         Run the back end (off: the filter alone, as before).
     keyframe_m, keyframe_rad : float
-        A corrected scan becomes a keyframe after this much travel (m) or turning (rad) since
-        the last one.
+        A corrected scan becomes a keyframe after this much travel (m) or turning (rad) since the last one.
     submap_m : float
         The scans of the keyframes within this much travel (m) of a keyframe form its local map:
         the query (the last ``submap_m`` before it) and the reference (``submap_m`` each side of
@@ -723,7 +722,8 @@ class LoopClosureConfig(_ConfigBase):
     ambiguity_m : float
         Distance (m) beyond which a candidate is a rival match.
     look_elsewhere, look_elsewhere_m, look_elsewhere_rad : float
-        ``min_inliers`` + this per e-fold of a search's volume beyond ``_m`` x ``_rad`` (half-widths).
+        A wide search needs more inliers: ``min_inliers`` + ``look_elsewhere`` per e-fold of the search
+        volume beyond ``look_elsewhere_m`` (m) x ``look_elsewhere_rad`` (rad) half-widths.
     seq_sigma_xy_m, seq_sigma_xy_per_m : float
         Std (m, m per m) of the translation between consecutive keyframes as the filter has it,
         along the direction of travel ...
