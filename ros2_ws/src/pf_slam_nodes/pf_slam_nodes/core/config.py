@@ -752,7 +752,7 @@ class LoopClosureConfig(_ConfigBase):
     window_min_m: float = 0.6
     window_per_m: float = 0.03
     window_max_m: float = 10.0
-    window_rad: float = 0.25
+    window_rad: float = 0.12
     resolution_m: float = 0.05
     coarse_m: float = 0.2
     sigma_m: float = 0.05
