@@ -739,8 +739,7 @@ class LoopClosureConfig(_ConfigBase):
     max_chi2 : float
         A loop edge whose chi-square stays above this at the solution is dropped.
     rebuild_m : float
-        The map is re-rendered from the optimised poses when a solution moves a keyframe by
-        more than this (m) since the map was last built.
+        Re-render the map from the optimised poses when a solution moves a keyframe more than this (m) from its map pose.
     """
 
     enabled: bool = False
@@ -792,7 +791,8 @@ class LoopClosureConfig(_ConfigBase):
             *("seq_sigma_xy_per_m", "seq_sigma_lateral_per_m", "seq_sigma_rad_per_m"),
         ):
             _check_nonneg(name, getattr(self, name))
-        _check_int("max_points", self.max_points, 30), _check_int("candidates", self.candidates, 1)
+        for name, least in (("max_points", 30), ("candidates", 1)):
+            _check_int(name, getattr(self, name), least)
         for name in ("min_inliers", "max_contradictions"):
             _check_finite(name, getattr(self, name))
             _check_unit(name, getattr(self, name))
