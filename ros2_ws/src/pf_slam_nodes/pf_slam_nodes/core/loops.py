@@ -18,7 +18,8 @@ candidates are refined on a fine field (Gauss-Newton). A query point scores +1 w
 (a contradiction: a wall where the earlier visit saw through), 0 where the reference saw
 nothing; the best candidate needs ``min_inliers`` (more in a wide search: :func:`min_inliers`),
 at most ``max_contradictions``, and must beat every candidate ``ambiguity_m`` or more away by
-``min_margin`` (a corridor of identical doors has several). The solution drops loop edges that disagree with the rest (``max_chi2``).
+``min_margin`` (a corridor of identical doors has several). The solution drops loop edges that
+disagree with the rest (``max_chi2``).
 
 Frames: the poses given to :meth:`LoopCloser.add` are the filter's in one fixed frame, the *raw*
 frame (the stages keep the filter's own frame changes out of it: core/stages.py). The
