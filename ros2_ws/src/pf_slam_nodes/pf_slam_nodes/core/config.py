@@ -782,8 +782,8 @@ class LoopClosureConfig(_ConfigBase):
         for name in (
             *("keyframe_m", "keyframe_rad", "submap_m", "loop_every_m", "window_max_m", "window_rad"),
             *("resolution_m", "coarse_m", "sigma_m", "max_range_m", "ambiguity_m", "cauchy", "max_chi2"),
-            *("seq_sigma_xy_m", "seq_sigma_rad", "loop_sigma_xy_m", "loop_sigma_rad", "look_elsewhere_m"),
-            "look_elsewhere_rad",
+            *("seq_sigma_xy_m", "seq_sigma_rad", "loop_sigma_xy_m", "loop_sigma_rad"),
+            *("look_elsewhere_m", "look_elsewhere_rad"),
         ):
             _check_pos(name, getattr(self, name))
         for name in (

@@ -62,7 +62,7 @@ def min_inliers(cfg: LoopClosureConfig, window_m: float) -> float:
     ``look_elsewhere_m`` x ``look_elsewhere_rad`` (the more poses searched, the better the best
     wrong one fits: the outdoor campus, at 10 m / 0.25 rad, matched a place 10.5 m off at 0.50-0.52)."""
     ratio = (window_m / cfg.look_elsewhere_m) ** 2 * (cfg.window_rad / cfg.look_elsewhere_rad)
-    return cfg.min_inliers + cfg.look_elsewhere * max(0.0, math.log(ratio))
+    return cfg.min_inliers + (cfg.look_elsewhere * math.log(ratio) if ratio > 1.0 else 0.0)
 
 
 def _voxel(points: np.ndarray, size: float) -> np.ndarray:
