@@ -179,6 +179,58 @@ def test_texture_in_map_geometry(ros_context, kaist):
         feed.destroy()
 
 
+def _coloured_xy(img: Image) -> tuple[np.ndarray, np.ndarray]:
+    rows, cols = np.nonzero(image_array(img).any(axis=2))
+    return MAP_ORIGIN[0] + (cols + 0.5) * MAP_RES, MAP_ORIGIN[1] + (rows + 0.5) * MAP_RES
+
+
+def test_final_texture_is_placed_on_the_corrected_trajectory(ros_context, kaist):
+    """A closed loop corrects the trajectory after the pairs were textured: with
+    await_trajectory the final texture waits for pf_slam/trajectory and moves with it."""
+    from nav_msgs.msg import Path as PathMsg
+
+    from pf_slam_interfaces.msg import ReplayStatus
+    from pf_slam_nodes.ros import cdr, topics
+
+    ctx = ros_context
+    node = _make(ctx, await_trajectory=True, trajectory_timeout_s=30.0, final_idle_s=0.5)
+    feed = Feeder(ctx, kaist)
+    pub_traj = feed.node.create_publisher(PathMsg, topics.TRAJECTORY, qos.latched())
+    pub_done = feed.node.create_publisher(ReplayStatus, topics.REPLAY_STATUS, qos.latched())
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    ex.add_node(feed.node)
+    try:
+        assert spin_until(ex, feed.matched, 10)
+        feed.publish_static()
+        feed.publish_poses(T0, T0 + 300_000_000)  # parked at the origin, as the filter saw it
+        feed.publish_pair(T0 + 100_000_000)
+        assert spin_until(ex, lambda: node.frames_processed == 1, 30), node.counters()
+        before = node.publish_texture()
+        pub_done.publish(ReplayStatus(done=True, topics=["/scan"], counts=[31]))
+        for _ in range(10):  # the end of the bag alone does not make the texture final
+            ex.spin_once(timeout_sec=0.1)
+        assert not node.counters()["final"]
+        # the corrected trajectory: 2 m further along x, 0.6 m to the left
+        st = np.arange(T0, T0 + 300_000_001, 10_000_000, dtype=np.int64)
+        poses = np.tile([2.0, 0.6, 0.0], (len(st), 1))
+        pub_traj.publish(cdr.path_bytes(st, poses, int(st[-1]), "map"))
+        assert spin_until(ex, lambda: bool(feed.status) and feed.status[-1]["final"], 30), node.counters()
+        c = node.counters()
+        assert c["replaced"]["pairs_moved"] == 1 and abs(c["replaced"]["shift_median_m"] - np.hypot(2.0, 0.6)) < 1e-3
+        assert c["kept_memory_mb"] > 0
+        after = node.publish_texture()
+        (xb, yb), (xa, ya) = _coloured_xy(before), _coloured_xy(after)
+        assert abs(len(xa) - len(xb)) < 0.05 * len(xb)  # the same road, moved (0.2 m cells)
+        for a, b, d in ((xa, xb, 2.0), (ya, yb, 0.6)):
+            assert abs(np.median(a) - np.median(b) - d) < 0.15
+            assert abs(a.min() - b.min() - d) < 0.25 and abs(a.max() - b.max() - d) < 0.25
+    finally:
+        ex.shutdown()
+        node.destroy_node()
+        feed.destroy()
+
+
 def test_flooded_pairs_are_skipped_not_queued(ros_context, kaist):
     ctx = ros_context
     node = _make(ctx, queue_depth=1, max_pending_pairs=20, use_map_metadata=False)

@@ -54,6 +54,7 @@ def test_true_fog_bias_per_second_and_table(tmp_path):
         coverage=0.8,
         texture_ms_per_pair=120.0,
         texture_ms_stages={"disparity": 40.0, "ground": 30.0},
+        texture_replaced={"pairs_moved": 300, "shift_median_m": 0.214, "shift_max_m": 0.5},
     )
     assert car.targets_line([tex, dict(tex, colour_error=13.0)]).endswith(
         "; stereo pairs textured 600 of 600 (0 skipped); texture colour error median 11.8, worst 13.0 "
@@ -61,7 +62,8 @@ def test_true_fog_bias_per_second_and_table(tmp_path):
     )
     t = car.format_texture_table([tex]).splitlines()
     assert t[0].endswith("| ms / pair | disparity ms | ground ms |")
-    assert t[2] == "| 3 | 2 | 1 | 300 | 300 | 0 | 10.5 | 8.0 | 0.80 | 120 | 40 | 30 |"
+    assert t[2] == "| 3 | 2 | 1 | 300 | 300 | 0 | 10.5 | 8.0 | 0.80 | 0.21 | 120 | 40 | 30 |"
+    assert car.format_texture_table([dict(tex, texture_replaced=None)]).splitlines()[2].count("| – |") == 1
 
 
 def _images(bag):

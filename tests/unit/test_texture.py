@@ -363,3 +363,82 @@ def test_real_pair_samples_deterministic_and_on_the_ground(kaist):
     assert ahead.min() >= cfg.min_range_m - 1e-6 and ahead.max() <= cfg.max_range_m + 1e-6
     assert np.abs(a.xy_vehicle[:, 1] - rig.t_vehicle_cam[1]).max() <= cfg.max_lateral_m + 1e-6
     assert a.rgb[: len(a.xy_vehicle)].astype(float).mean() < 120
+
+
+def test_weighted_samples_are_repeated_samples():
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(-2.0, 2.0, (500, 2))
+    rgb = rng.integers(0, 256, (500, 3))
+    n = rng.integers(1, 5, 500)
+    a, b = TextureMap(), TextureMap()
+    a.add(np.repeat(xy, n, axis=0), np.repeat(rgb, n, axis=0))
+    b.add(xy, rgb, n)
+    ra, ca = a.render((-2.0, -2.0), 0.1, 40, 40)
+    rb, cb = b.render((-2.0, -2.0), 0.1, 40, 40)
+    np.testing.assert_array_equal(ca, cb)
+    assert np.abs(ra.astype(int) - rb.astype(int)).max() <= 1
+
+
+def _road(rng: np.random.Generator, pose: np.ndarray, n: int = 80000) -> tuple[np.ndarray, np.ndarray]:
+    """Samples 3-20 m ahead of `pose`, coloured by a pattern fixed to the ground in the vehicle frame."""
+    v = np.column_stack([rng.uniform(3.0, 20.0, n), rng.uniform(-6.0, 6.0, n)])
+    rgb = np.column_stack([(v[:, 0] * 40) % 256, (v[:, 1] * 40) % 256, np.full(n, 128.0)])
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    return np.column_stack([pose[0] + c * v[:, 0] - s * v[:, 1], pose[1] + s * v[:, 0] + c * v[:, 1]]), rgb
+
+
+def test_kept_pairs_are_placed_again_at_the_corrected_poses():
+    """Pairs textured at the filter's poses, rebuilt at the corrected ones: the same cells, to the
+    bins' resolution, as texturing at the corrected poses in the first place."""
+    from pf_slam_nodes.core.texture import PairPatches
+
+    online = np.array([[0.0, 0.0, 0.0], [10.0, 0.3, 0.02], [20.0, 0.8, 0.05]])
+    corrected = online + np.array([[0.0, 0.0, 0.0], [0.4, -0.2, 0.01], [0.9, -0.5, 0.02]])
+    stamps = np.array([1.0, 2.0, 3.0])
+    direct, placed, keep = TextureMap(), TextureMap(), PairPatches(0.05)
+    for t, p, q in zip(stamps, online, corrected):
+        r = np.random.default_rng(int(t))
+        xy, rgb = _road(r, p)
+        placed.add(xy, rgb)
+        keep.keep(t, p, xy, rgb, placed)
+        direct.add(*_road(np.random.default_rng(int(t)), q))
+    rebuilt, info = keep.replace(stamps, corrected, placed)
+    assert info["pairs_moved"] == 3 and info["pairs_frozen"] == 0
+    assert abs(info["shift_max_m"] - np.hypot(0.9, 0.5)) < 1e-3
+    geo = ((-5.0, -10.0), 0.1, 400, 200)
+    rd, cd = direct.render(*geo)
+    rr, cr = rebuilt.render(*geo)
+    ro, co = placed.render(*geo)
+    both = cd & cr
+    assert both.sum() > 0.97 * cd.sum() and abs(int(cr.sum()) - int(cd.sum())) < 0.03 * cd.sum()
+    err_rebuilt = np.abs(rr[both].astype(int) - rd[both].astype(int)).mean()
+    both_o = cd & co
+    err_online = np.abs(ro[both_o].astype(int) - rd[both_o].astype(int)).mean()
+    assert err_rebuilt < 3.0 and err_online > 4 * err_rebuilt, (err_rebuilt, err_online)
+    # a second trajectory replaces the first: placing is from the kept samples, not cumulative
+    again, _ = keep.replace(stamps, corrected, placed)
+    np.testing.assert_array_equal(again.render(*geo)[0], rr)
+
+
+def test_kept_pairs_beyond_the_budget_stay_where_they_were_placed():
+    from pf_slam_nodes.core.texture import PairPatches
+
+    rng = np.random.default_rng(1)
+    poses = np.array([[0.0, 0.0, 0.0], [30.0, 0.0, 0.0], [60.0, 0.0, 0.0]])
+    tm = TextureMap()
+    one = PairPatches(0.05)
+    one.keep(0.0, poses[0], *_road(rng, poses[0]), tm)
+    keep = PairPatches(0.05, budget_bytes=int(1.5 * one.nbytes))  # room for one pair
+    for t, p in enumerate(poses):
+        keep.keep(float(t), p, *_road(np.random.default_rng(t), p), tm)
+    assert len(keep.patches) == 1 and keep.pairs_frozen == 2 and keep.nbytes <= keep.budget_bytes
+    moved = poses + [0.0, 1.0, 0.0]
+    out, info = keep.replace(np.arange(3.0), moved, tm)
+    assert info["pairs_moved"] == 1 and info["pairs_frozen"] == 2
+    _, cov = out.render((-5.0, -10.0), 0.1, 900, 200)
+    ys = np.nonzero(cov)[0] * 0.1 - 10.0
+    xs = np.nonzero(cov)[1] * 0.1 - 5.0
+    # the frozen pairs (x < 55 m) stay at |y| <= 6 m; the kept one moved 1 m to the left
+    assert ys[xs < 55].max() < 6.1 and ys[xs > 62].max() > 6.8 and ys[xs > 62].min() > -5.1
+    with pytest.raises(ValueError):
+        PairPatches(0.0)

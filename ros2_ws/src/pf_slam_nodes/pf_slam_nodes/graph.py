@@ -178,6 +178,9 @@ def _plan(
     mount_text, mount_notes = _mount_report(mount, detected, user, node_names)
     per_node = _layer_params(bag, params_file, rate, overrides, texture, record, node_names, prof, detected, file_layer)
     checks = _check_stamps_and_pairing(str(bag), stamps, per_node, params_file)
+    if texture and per_node["mapper"].get("loops.enabled", False):
+        # the final texture is placed on the loop closure's corrected trajectory
+        per_node["texture"].setdefault("await_trajectory", True)
     if str(per_node["bag_replay"].get("rate", "max")) == "max":
         # arrival times say nothing about the clocks at --rate max (the bag's stamps were checked
         # before the run: inspect_stamps)

@@ -15,9 +15,15 @@ Subscribes
 * ``map_metadata`` (``nav_msgs/MapMetaData``, latched, as the mapper publishes it with every
   ``map``), or with ``use_map_metadata:=false`` ``map`` (``nav_msgs/OccupancyGrid``): only the
   map's geometry (origin, resolution, size) is used, as the geometry of the texture.
+* ``pf_slam/trajectory`` (``nav_msgs/Path``, latched; the mapper's, with loop closure: every
+  scan's pose in the final, corrected frame): once the pairs it covers are textured, the texture
+  is rebuilt with every kept pair at its corrected pose (core ``PairPatches``; the online poses
+  of ``pose`` are the filter's, which a closed loop corrects only afterwards).
 * ``pf_slam/replay_status`` (latched): at the end of a bag, once nothing is left to do (or
   ``final_idle_s`` passed without progress), the final texture is published once more and
-  pairs still waiting for a pose are dropped.
+  pairs still waiting for a pose are dropped. With ``await_trajectory`` (``pf-slam run`` sets it
+  when the mapper closes loops) the final texture first waits for ``pf_slam/trajectory`` (at most
+  ``trajectory_timeout_s``) and is placed on it.
 
 Publishes
 ---------
@@ -81,7 +87,7 @@ from collections import deque
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
-from nav_msgs.msg import MapMetaData, OccupancyGrid
+from nav_msgs.msg import MapMetaData, OccupancyGrid, Path
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import String, UInt32MultiArray
@@ -165,6 +171,8 @@ class TextureNode(Node):
         self.queue_depth = param(self, "queue_depth", 1)
         self.max_pending_pairs = param(self, "max_pending_pairs", 10)
         self.final_idle_s = param(self, "final_idle_s", 2.0)
+        self.await_trajectory = param(self, "await_trajectory", False)
+        self.trajectory_timeout_s = param(self, "trajectory_timeout_s", 60.0)
         self.worker_nice = param(self, "worker_nice", 10)
         pose_buffer = param(self, "pose_buffer_size", 3000)
         left_topic = param(self, "left_topic", "/stereo/left/image_raw")
@@ -217,6 +225,7 @@ class TextureNode(Node):
         self._anchor: tuple[float, float] | None = None  # the map origin, to align the cells with
         self._texture_cells = 0
         self._texture_bytes = 0
+        self._kept_bytes = 0
         self.worker_error = ""
         self._map_info: MapMetaData | None = None
         self._images: dict[str, dict[int, Image]] = {"left": {}, "right": {}}
@@ -237,6 +246,9 @@ class TextureNode(Node):
         self.last_stamp_ns = 0
         self.last_error = ""
         self._replay_done = False
+        self._replay_done_at: float | None = None
+        self._trajectory: tuple[np.ndarray, np.ndarray] | None = None  # pf_slam/trajectory, not yet applied
+        self.replaced: dict = {}  # what the last re-placement did (counters' "replaced")
         self._final_sent = False
         self._last_activity = time.monotonic()
         self._last_input = time.monotonic()
@@ -267,6 +279,7 @@ class TextureNode(Node):
         else:
             self.create_subscription(OccupancyGrid, topics.MAP, lambda m: self._on_map_info(m.info), qos.latched())
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
+        self.create_subscription(Path, topics.TRAJECTORY, self._on_trajectory, qos.latched(), raw=True)
         self.create_timer(period, self._on_timer)
         self._worker = threading.Thread(target=self._work, name="texture_worker", daemon=True)
         self._worker.start()
@@ -430,6 +443,18 @@ class TextureNode(Node):
 
     def _on_replay_status(self, msg: ReplayStatus) -> None:
         self._replay_done = bool(msg.done)
+        if self._replay_done and self._replay_done_at is None:
+            self._replay_done_at = time.monotonic()
+
+    def _on_trajectory(self, raw: bytes) -> None:
+        try:
+            stamps, poses = cdr.path_xy_yaw(raw)
+        except ValueError as exc:
+            self.get_logger().error(f"{topics.TRAJECTORY}: message dropped: {exc}")
+            return
+        with self._cond:
+            self._trajectory = (stamps.astype(np.float64) / 1e9, poses)
+            self._cond.notify()
 
     # ------------------------------------------------------------------ scheduling
     def _ensure_rig(self) -> bool:
@@ -530,18 +555,23 @@ class TextureNode(Node):
                 pass
         while True:
             with self._cond:
-                while not self._stop and not self._ready and not self._want_render:
+                while not self._stop and not self._ready and not self._want_render and not self._replace_due():
                     self._cond.wait(0.5)
                 if self._stop:
                     return
                 pair = self._ready.popleft() if self._ready else None
-                render = self._want_render and pair is None
+                traj = None
+                if pair is None and self._replace_due():
+                    traj, self._trajectory = self._trajectory, None
+                render = self._want_render and pair is None and traj is None
                 if render:
                     self._want_render = False
                 self._busy = True
             try:
                 if pair is not None:
                     self._process(pair)
+                elif traj is not None:
+                    self._replace(*traj)
                 elif render:
                     self.publish_texture()
             except WorkerDied as e:  # logged once; every later pair is dropped
@@ -563,6 +593,28 @@ class TextureNode(Node):
                     self._last_activity = time.monotonic()
                 self._publish_progress()
 
+    def _replace_due(self) -> bool:
+        """A corrected trajectory is here and every pair it covers is textured (under the lock)."""
+        if self._trajectory is None or self._ready:
+            return False
+        last = self._trajectory[0][-1] if len(self._trajectory[0]) else -np.inf
+        return not any(p.stamp_ns / 1e9 <= last for p in self._awaiting)
+
+    def _replace(self, stamps_s: np.ndarray, poses: np.ndarray) -> None:
+        t0 = time.perf_counter()
+        out = self._backend.call("replace", stamps_s, poses)
+        ms = 1e3 * (time.perf_counter() - t0)
+        with self.lock:
+            self._engine_stats(out)
+            self.replaced = {
+                k: out[k] for k in ("pairs_moved", "pairs_frozen", "shift_median_m", "shift_max_m") if k in out
+            }
+            self.replaced["ms"] = round(ms, 1)
+            self._dirty = True
+        self.get_logger().info(
+            f"texture placed again on the corrected trajectory ({len(stamps_s)} poses): {json.dumps(self.replaced)}"
+        )
+
     def _sync_anchor(self) -> None:
         """Hand the map origin received since the last call to the engine (it aligns its cells
         with it while nothing is coloured)."""
@@ -573,6 +625,7 @@ class TextureNode(Node):
 
     def _engine_stats(self, out: dict) -> None:
         self._texture_cells, self._texture_bytes = out["cells"], out["memory_bytes"]
+        self._kept_bytes = out.get("kept_bytes", 0)
 
     def _process(self, pair: _Pair) -> None:
         if self.mode == "depth":
@@ -584,7 +637,7 @@ class TextureNode(Node):
             self._engine_ready = True
         left, right = image_array(pair.left), image_array(pair.right)
         self._sync_anchor()
-        out = self._backend.call("stereo", left, right, pair.pose, pair.left.encoding)
+        out = self._backend.call("stereo", left, right, pair.pose, pair.left.encoding, pair.stamp_ns / 1e9)
         with self.lock:
             self._engine_stats(out)
             for k, v in out["ms_stages"].items():
@@ -604,7 +657,9 @@ class TextureNode(Node):
         if pair.left.encoding.lower() == "bgr8":
             rgb = rgb[..., ::-1]
         self._sync_anchor()
-        out = self._backend.call("depth", depth_array(pair.right), rgb, pair.mount, pair.pose, pair.rgb_from_depth)
+        out = self._backend.call(
+            "depth", depth_array(pair.right), rgb, pair.mount, pair.pose, pair.rgb_from_depth, pair.stamp_ns / 1e9
+        )
         with self.lock:
             self._engine_stats(out)
             self._dirty = True
@@ -629,6 +684,8 @@ class TextureNode(Node):
                 else {},
                 "texture_cells": self._texture_cells,
                 "texture_memory_mb": round(self._texture_bytes / 2**20, 1),
+                "kept_memory_mb": round(self._kept_bytes / 2**20, 1),
+                **({"replaced": dict(self.replaced)} if self.replaced else {}),
                 "final": self._final_sent,
                 "mode": self.mode,
                 "worker": self.worker,
@@ -692,12 +749,19 @@ class TextureNode(Node):
         now = time.monotonic()
         with self.lock:
             quiet = now - max(self._last_activity, self._last_input) > self.final_idle_s
+            # with await_trajectory the final texture is the one placed on the corrected trajectory
+            placed = (
+                not self.await_trajectory
+                or (self.replaced and self._trajectory is None)
+                or now - (self._replay_done_at or now) > self.trajectory_timeout_s
+            )
             finish = (
                 self._replay_done
                 and not self._final_sent
                 and not self._ready
                 and not self._busy
                 and (not self._awaiting or quiet)
+                and placed
             )
             if finish:  # end of the bag: pairs still without a pose never get one
                 self.frames_dropped += len(self._awaiting)

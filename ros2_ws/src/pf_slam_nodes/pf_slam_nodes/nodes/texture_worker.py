@@ -28,7 +28,15 @@ from multiprocessing.connection import wait
 
 import numpy as np
 
-from ..core.texture import DepthCamera, DepthTexturer, StereoRig, StereoTexturer, TextureConfig, TextureMap
+from ..core.texture import (
+    DepthCamera,
+    DepthTexturer,
+    PairPatches,
+    StereoRig,
+    StereoTexturer,
+    TextureConfig,
+    TextureMap,
+)
 
 
 class WorkerDied(RuntimeError):
@@ -42,6 +50,8 @@ class TextureEngine:
         self.cfg = cfg
         self.texmap = TextureMap.from_config(cfg)
         self.texturer: StereoTexturer | DepthTexturer | None = None
+        budget = int(cfg.replace_budget_mb * 2**20)
+        self.kept = PairPatches(cfg.replace_bin_m, budget) if budget > 0 else None
 
     def ready(self) -> bool:
         return True
@@ -57,15 +67,32 @@ class TextureEngine:
     def setup_depth(self, camera: DepthCamera, floor_height_m: float) -> None:
         self.texturer = DepthTexturer(camera, self.cfg, floor_height_m)
 
-    def stereo(self, left: np.ndarray, right: np.ndarray, pose: np.ndarray, encoding: str) -> dict:
+    def stereo(
+        self, left: np.ndarray, right: np.ndarray, pose: np.ndarray, encoding: str, stamp_s: float | None = None
+    ) -> dict:
         assert isinstance(self.texturer, StereoTexturer)
         cells = (self.texmap.anchor.copy(), self.texmap.cell_m)
         res = self.texturer.process(left, right, pose, encoding, cells=cells)
         t1 = time.perf_counter()
         self.texmap.add(res.xy_world, res.rgb)
+        t2 = time.perf_counter()
+        self._keep(stamp_s, pose, res.xy_world, res.rgb)
         ms = {k: float(v) for k, v in res.timings_ms.items() if k != "total"}
-        ms["accumulate"] = 1e3 * (time.perf_counter() - t1)
+        ms["accumulate"] = 1e3 * (t2 - t1)
+        ms["keep"] = 1e3 * (time.perf_counter() - t2)
         return {"ms_stages": ms, "plane_fitted": bool(res.plane_fitted), **self.stats()}
+
+    def _keep(self, stamp_s: float | None, pose: np.ndarray, xy: np.ndarray, rgb: np.ndarray) -> None:
+        if self.kept is not None and stamp_s is not None:
+            self.kept.keep(stamp_s, pose, xy, rgb, self.texmap)
+
+    def replace(self, stamps_s: np.ndarray, poses: np.ndarray) -> dict:
+        """The texture rebuilt with every kept pair at the trajectory ``(stamps_s, poses)``
+        (the loop closure's corrected one); see :class:`PairPatches`."""
+        if self.kept is None:
+            return {"pairs_moved": 0, **self.stats()}
+        self.texmap, info = self.kept.replace(stamps_s, poses, self.texmap)
+        return {**info, **self.stats()}
 
     def depth(
         self,
@@ -74,10 +101,12 @@ class TextureEngine:
         mount: tuple[np.ndarray, np.ndarray],
         pose: np.ndarray,
         rgb_from_depth: tuple[np.ndarray, np.ndarray] | None,
+        stamp_s: float | None = None,
     ) -> dict:
         assert isinstance(self.texturer, DepthTexturer)
         res = self.texturer.process(depth_mm, rgb, mount, pose, rgb_from_depth)
         self.texmap.add(res.xy_world, res.rgb)
+        self._keep(stamp_s, pose, res.xy_world, res.rgb)
         return {"ms_stages": {}, "plane_fitted": bool(res.plane_fitted), **self.stats()}
 
     def render(self, origin: tuple[float, float], resolution: float, width: int, height: int):
@@ -87,7 +116,12 @@ class TextureEngine:
         return self.texmap.render_native()
 
     def stats(self) -> dict:
-        return {"cells": int(self.texmap.cell_count()), "memory_bytes": int(self.texmap.memory_bytes)}
+        kept = self.kept
+        return {
+            "cells": int(self.texmap.cell_count()),
+            "memory_bytes": int(self.texmap.memory_bytes),
+            "kept_bytes": 0 if kept is None else int(kept.nbytes) + (kept.frozen.memory_bytes if kept.frozen else 0),
+        }
 
 
 class ThreadBackend:

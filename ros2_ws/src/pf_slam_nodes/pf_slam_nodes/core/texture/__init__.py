@@ -31,6 +31,8 @@ Per stereo pair (:meth:`StereoTexturer.process`):
    away a row spans more than a cell) get the bilinear colour at their centre's projection
    (``fill_gaps``).
 7. **Accumulation** (:class:`TextureMap`): running mean RGB per cell, every sample weighs 1.
+8. **Placed again** (:class:`PairPatches`): every pair's samples are also kept in the vehicle
+   frame (binned), so that the texture can be rebuilt at the loop closure's corrected poses.
 
 Frames: rectified left camera x right, y down, z forward (origin = left optical centre);
 vehicle (``base_link``) x forward, y left, z up, origin on the ground; world / map = the frame
@@ -56,7 +58,8 @@ Modules (by stage): :mod:`.config` (:class:`TextureConfig`), :mod:`.rig` (:class
 :mod:`.images` (stages 1-2: :func:`debayer`, :func:`grey`, :func:`detect_rectified`),
 :mod:`.texturer` (stages 1-6 per pair: :class:`StereoTexturer`; :func:`interpolate_poses`),
 :mod:`.ground` (stage 5: :class:`Plane`, :func:`fit_ground_plane`), :mod:`.map` (stage 7:
-:class:`TextureMap`; :func:`north_up_bgr`, :func:`overlay_occupancy`), :mod:`.evaluation`
+:class:`TextureMap`; :func:`north_up_bgr`, :func:`overlay_occupancy`), :mod:`.patches` (stage 8:
+:class:`PairPatches`), :mod:`.evaluation`
 (:func:`measure_stereo_pair`, :func:`visible_ground_mask`, :func:`colour_error`). No file I/O
 here: the rig from the KAIST ``param/`` files is :func:`pf_slam_nodes.io.calib.read_stereo_rig`,
 the PNG reader / writer are in :mod:`pf_slam_nodes.io.texture_files`.
@@ -70,6 +73,7 @@ from .evaluation import PairMeasurement, colour_error, measure_stereo_pair, road
 from .ground import Plane, fit_ground_plane
 from .images import debayer, detect_rectified, grey
 from .map import TextureMap, north_up_bgr, overlay_occupancy
+from .patches import PairPatches
 from .rig import StereoRig
 from .texturer import FrameResult, StereoTexturer, interpolate_poses
 
@@ -80,6 +84,7 @@ __all__ = [
     "DepthTexturer",
     "FrameResult",
     "PairMeasurement",
+    "PairPatches",
     "Plane",
     "StereoRig",
     "StereoTexturer",

@@ -134,6 +134,13 @@ class TextureConfig(_ConfigBase):
         Texture tile edge (cells).
     max_tiles : int
         Tiles allocated at most (``16 * tile_cells**2`` bytes each).
+    replace_budget_mb : float
+        Every pair's samples are also kept in the vehicle frame (binned at ``replace_bin_m``,
+        ~0.45 MB a KAIST pair, :class:`PairPatches`) so that the texture can be placed again on
+        the loop closure's corrected trajectory; at most this much (MiB; beyond it the oldest
+        pairs stay where they were placed). 0 keeps nothing.
+    replace_bin_m : float
+        Bin size of the kept samples (m).
     seed : int
         RANSAC random seed.
     depth_stride : int
@@ -176,6 +183,8 @@ class TextureConfig(_ConfigBase):
     cell_m: float = 0.1
     tile_cells: int = 128
     max_tiles: int = 1024
+    replace_budget_mb: float = 256.0
+    replace_bin_m: float = 0.05
     seed: int = 0
     depth_stride: int = 4
     depth_min_m: float = 0.4
@@ -237,6 +246,8 @@ class TextureConfig(_ConfigBase):
         _check_pos("cell_m", self.cell_m)
         _check_int("tile_cells", self.tile_cells, 8)
         _check_int("max_tiles", self.max_tiles, 1)
+        _check_nonneg("replace_budget_mb", self.replace_budget_mb)
+        _check_pos("replace_bin_m", self.replace_bin_m)
         _check_int("seed", self.seed, 0)
         _check_finite("cell_m", self.cell_m)
         _check_int("depth_stride", self.depth_stride, 1)

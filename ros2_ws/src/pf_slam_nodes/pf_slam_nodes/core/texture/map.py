@@ -65,20 +65,32 @@ class TextureMap:
         """World ``(N, 2)`` (m) -> int64 cell indices ``(N, 2)`` ``[i (x), j (y)]``."""
         return np.floor((np.asarray(xy, dtype=np.float64) - self.anchor) / self.cell_m).astype(np.int64)
 
-    def add(self, xy: np.ndarray, rgb: np.ndarray) -> int:
+    def copy(self) -> TextureMap:
+        """An independent copy (tiles and counters)."""
+        out = TextureMap(self.cell_m, self.tile_cells, self.max_tiles, self.anchor)
+        out.tiles = {k: (m.copy(), c.copy()) for k, (m, c) in self.tiles.items()}
+        out.samples_added, out.samples_dropped = self.samples_added, self.samples_dropped
+        return out
+
+    def add(self, xy: np.ndarray, rgb: np.ndarray, weights: np.ndarray | None = None) -> int:
         """Add samples: world points ``(N, 2)`` (m) with colours ``(N, 3)`` (0..255).
 
-        Every sample weighs 1: a cell's colour is the mean of all samples that fell in it
-        (``mean += (sum - n mean) / (count + n)`` per cell and call). Returns the number of
-        samples added (the rest needed a tile beyond ``max_tiles``).
+        Every sample weighs 1 (or ``weights`` (N,): a sample standing for that many): a cell's
+        colour is the mean of all samples that fell in it (``mean += (sum - n mean) / (count +
+        n)`` per cell and call). Returns the number of samples added (the rest needed a tile
+        beyond ``max_tiles``).
         """
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         col = np.asarray(rgb, dtype=np.float32).reshape(-1, 3)
-        if len(xy) != len(col):
-            raise ValueError(f"{len(xy)} points but {len(col)} colours")
+        wt = None if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
+        if len(xy) != len(col) or (wt is not None and len(wt) != len(xy)):
+            raise ValueError(f"{len(xy)} points but {len(col)} colours, {'no' if wt is None else len(wt)} weights")
         ok = np.isfinite(xy[:, 0]) & np.isfinite(xy[:, 1])
+        if wt is not None:
+            ok &= wt > 0
         if not ok.all():
             xy, col = xy[ok], col[ok]
+            wt = None if wt is None else wt[ok]
         if not len(xy):
             return 0
         t = self.tile_cells
@@ -95,13 +107,15 @@ class TextureMap:
             order = np.argsort(key, kind="stable")
             ks = key[order]
             cuts = np.flatnonzero(ks[1:] != ks[:-1]) + 1
-            return sum(self.add(xy[g], col[g]) for g in np.split(order, cuts))
+            return sum(self.add(xy[g], col[g], None if wt is None else wt[g]) for g in np.split(order, cuts))
         # per-cell sample counts and colour sums over the batch's bounding box, then the
         # touched cells tile by tile
         flat = (cy - lo[1]) * gw + (cx - lo[0])
-        n = np.bincount(flat, minlength=gw * gh)
+        n = np.bincount(flat, weights=wt, minlength=gw * gh)
         hit = np.flatnonzero(n)
         nt_all = n[hit]
+        if wt is not None:
+            col = col * wt[:, None].astype(np.float32)
         ss_all = np.stack(
             [np.bincount(flat, weights=np.ascontiguousarray(col[:, ch]), minlength=gw * gh)[hit] for ch in range(3)],
             axis=-1,
