@@ -81,6 +81,9 @@ PARAM_DOCS: dict[str, str] = {
     "queue_depth": "texture: stereo pairs waiting for the worker; a newer pair replaces the oldest (skipped)",
     "max_pending_pairs": "texture: pairs kept while waiting for their pose",
     "final_idle_s": "texture: after the end of the bag, finish once idle this long (s)",
+    "await_trajectory": "texture: the final texture waits for pf_slam/trajectory and is placed on it "
+    "(pf-slam run sets it when the mapper closes loops)",
+    "trajectory_timeout_s": "texture: with await_trajectory, finish without it this long after the end of the bag (s)",
     "worker_nice": "texture: nice increment of the worker thread / process (the SLAM nodes keep priority)",
     "worker": "texture: where pairs are textured: 'process' (a worker process, no GIL shared with the SLAM "
     "nodes) or 'thread' (the node's worker thread); same texture",

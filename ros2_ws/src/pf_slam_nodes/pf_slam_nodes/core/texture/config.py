@@ -136,7 +136,7 @@ class TextureConfig(_ConfigBase):
         Tiles allocated at most (``16 * tile_cells**2`` bytes each).
     replace_budget_mb : float
         Every pair's samples are also kept in the vehicle frame (binned at ``replace_bin_m``,
-        ~0.45 MB a KAIST pair, :class:`PairPatches`) so that the texture can be placed again on
+        ~0.4 MB a KAIST pair, :class:`PairPatches`) so that the texture can be placed again on
         the loop closure's corrected trajectory; at most this much (MiB; beyond it the oldest
         pairs stay where they were placed). 0 keeps nothing.
     replace_bin_m : float

@@ -8,7 +8,7 @@ texture can be built again from them at the corrected poses.
 
 Storage per pair: the samples binned at ``bin_m`` (0.05 m: half a texture cell; a bin's
 position error is at most 3.5 cm) in the vehicle frame, each bin's mean colour (uint8), its
-sample count (uint16) and its index (int16 x, int16 y): 9 bytes a bin, ~50 000 bins (0.45 MB)
+sample count (uint16) and its index (int16 x, int16 y): 9 bytes a bin, ~45 000 bins (0.4 MB)
 for a KAIST pair. At most ``budget_bytes``: beyond it the oldest pairs are placed for good
 (``frozen``, at the pose they were last placed with) and their samples dropped.
 """
