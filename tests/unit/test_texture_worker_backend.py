@@ -17,7 +17,7 @@ def test_calls_answer_in_order_and_errors_come_back():
     try:
         assert b.call("ready") is True
         b.call("set_anchor", (1.5, -2.0))
-        assert b.call("stats") == {"cells": 0, "memory_bytes": 0}
+        assert b.call("stats") == {"cells": 0, "memory_bytes": 0, "kept_bytes": 0}
         assert b.call("render_native") is None
         with pytest.raises(RuntimeError, match="AttributeError"):
             b.call("no_such_method")

@@ -91,6 +91,8 @@ NODE_PLAIN: dict[str, dict[str, Any]] = {
         "queue_depth": 1,
         "max_pending_pairs": 10,
         "final_idle_s": 2.0,
+        "await_trajectory": False,
+        "trajectory_timeout_s": 60.0,
         "worker_nice": 10,
         "worker": "process",
         "pose_buffer_size": 3000,
