@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import numpy as np
@@ -134,6 +135,22 @@ def _make(ctx, **params) -> TextureNode:
     return TextureNode(context=ctx, parameter_overrides=[Parameter(k, value=v) for k, v in base.items()])
 
 
+@contextlib.contextmanager
+def _graph(ctx, kaist: Path, **params):
+    """The texture node (``params``) and a Feeder on one executor; all destroyed afterwards."""
+    node = _make(ctx, **params)
+    feed = Feeder(ctx, kaist)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    ex.add_node(feed.node)
+    try:
+        yield node, feed, ex
+    finally:
+        ex.shutdown()
+        node.destroy_node()
+        feed.destroy()
+
+
 def test_image_array_handles_row_padding():
     msg = Image()
     msg.height, msg.width, msg.step, msg.encoding = 2, 3, 4, "mono8"
@@ -143,12 +160,7 @@ def test_image_array_handles_row_padding():
 
 def test_texture_in_map_geometry(ros_context, kaist):
     ctx = ros_context
-    node = _make(ctx)
-    feed = Feeder(ctx, kaist)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-    ex.add_node(feed.node)
-    try:
+    with _graph(ctx, kaist) as (node, feed, ex):
         assert spin_until(ex, feed.matched, 10)
         feed.publish_static()
         stamps = [T0 + 100_000_000, T0 + 200_000_000]
@@ -173,10 +185,6 @@ def test_texture_in_map_geometry(ros_context, kaist):
         assert np.median(lum) < 80 and (lum > 120).sum() > 20
         c = node.counters()
         assert (c["frames_received"], c["frames_processed"], c["frames_skipped"]) == (2, 2, 0)
-    finally:
-        ex.shutdown()
-        node.destroy_node()
-        feed.destroy()
 
 
 def _coloured_xy(img: Image) -> tuple[np.ndarray, np.ndarray]:
@@ -193,14 +201,9 @@ def test_final_texture_is_placed_on_the_corrected_trajectory(ros_context, kaist)
     from pf_slam_nodes.ros import cdr, topics
 
     ctx = ros_context
-    node = _make(ctx, await_trajectory=True, trajectory_timeout_s=30.0, final_idle_s=0.5)
-    feed = Feeder(ctx, kaist)
-    pub_traj = feed.node.create_publisher(PathMsg, topics.TRAJECTORY, qos.latched())
-    pub_done = feed.node.create_publisher(ReplayStatus, topics.REPLAY_STATUS, qos.latched())
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-    ex.add_node(feed.node)
-    try:
+    with _graph(ctx, kaist, await_trajectory=True, trajectory_timeout_s=30.0, final_idle_s=0.5) as (node, feed, ex):
+        pub_traj = feed.node.create_publisher(PathMsg, topics.TRAJECTORY, qos.latched())
+        pub_done = feed.node.create_publisher(ReplayStatus, topics.REPLAY_STATUS, qos.latched())
         assert spin_until(ex, feed.matched, 10)
         feed.publish_static()
         feed.publish_poses(T0, T0 + 300_000_000)  # parked at the origin, as the filter saw it
@@ -225,21 +228,12 @@ def test_final_texture_is_placed_on_the_corrected_trajectory(ros_context, kaist)
         for a, b, d in ((xa, xb, 2.0), (ya, yb, 0.6)):
             assert abs(np.median(a) - np.median(b) - d) < 0.15
             assert abs(a.min() - b.min() - d) < 0.25 and abs(a.max() - b.max() - d) < 0.25
-    finally:
-        ex.shutdown()
-        node.destroy_node()
-        feed.destroy()
 
 
 def test_flooded_pairs_are_skipped_not_queued(ros_context, kaist):
     ctx = ros_context
-    node = _make(ctx, queue_depth=1, max_pending_pairs=20, use_map_metadata=False)
-    feed = Feeder(ctx, kaist)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-    ex.add_node(feed.node)
-    n = 10
-    try:
+    with _graph(ctx, kaist, queue_depth=1, max_pending_pairs=20, use_map_metadata=False) as (node, feed, ex):
+        n = 10
         assert spin_until(ex, feed.matched, 10)
         feed.publish_static()
         feed.publish_poses(T0, T0 + 2_000_000_000, speed=5.0)
@@ -259,10 +253,6 @@ def test_flooded_pairs_are_skipped_not_queued(ros_context, kaist):
         img = node.publish_texture()
         assert img is not None and (img.width, img.height) == (MAP_W, MAP_H)
         assert spin_until(ex, lambda: bool(feed.status) and feed.status[-1]["frames_dropped"] == 1, 10)
-    finally:
-        ex.shutdown()
-        node.destroy_node()
-        feed.destroy()
 
 
 @pytest.mark.parametrize("bad", [(0.0, 0.0, 0.0, 0.0), (float("nan"), 0.0, 0.0, 1.0)])
@@ -270,12 +260,7 @@ def test_mount_rotation_without_direction_is_ignored(ros_context, kaist, bad):
     """A /tf_static rotation that is zero or not finite is no mount (it was taken as the identity
     or NaN): no rig from it, and the next good transform gives the rig."""
     ctx = ros_context
-    node = _make(ctx)
-    feed = Feeder(ctx, kaist)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-    ex.add_node(feed.node)
-    try:
+    with _graph(ctx, kaist) as (node, feed, ex):
         assert spin_until(ex, feed.matched, 10)
         feed.publish_static(quat=bad)
         assert spin_until(ex, lambda: len(node._infos) == 2, 10)
@@ -285,10 +270,6 @@ def test_mount_rotation_without_direction_is_ignored(ros_context, kaist, bad):
         assert spin_until(ex, lambda: node.rig is not None, 10)
         np.testing.assert_allclose(node.rig.R_vehicle_cam, feed.mount[0], atol=1e-9)
         np.testing.assert_allclose(node.rig.t_vehicle_cam, feed.mount[1], atol=1e-12)
-    finally:
-        ex.shutdown()
-        node.destroy_node()
-        feed.destroy()
 
 
 def test_killed_worker_process_is_a_clear_error_not_a_hang(ros_context, kaist):
