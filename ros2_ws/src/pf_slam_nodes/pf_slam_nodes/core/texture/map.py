@@ -65,9 +65,13 @@ class TextureMap:
         """World ``(N, 2)`` (m) -> int64 cell indices ``(N, 2)`` ``[i (x), j (y)]``."""
         return np.floor((np.asarray(xy, dtype=np.float64) - self.anchor) / self.cell_m).astype(np.int64)
 
+    def empty_like(self) -> TextureMap:
+        """An empty map of the same geometry (cell, tiles, anchor)."""
+        return TextureMap(self.cell_m, self.tile_cells, self.max_tiles, self.anchor)
+
     def copy(self) -> TextureMap:
         """An independent copy (tiles and counters)."""
-        out = TextureMap(self.cell_m, self.tile_cells, self.max_tiles, self.anchor)
+        out = self.empty_like()
         out.tiles = {k: (m.copy(), c.copy()) for k, (m, c) in self.tiles.items()}
         out.samples_added, out.samples_dropped = self.samples_added, self.samples_dropped
         return out

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .map import TextureMap
+from .texturer import interpolate_poses
 
 
 @dataclass
@@ -114,7 +115,7 @@ class PairPatches:
             old = self.patches.popleft()
             self.nbytes -= old.nbytes
             if self.frozen is None:
-                self.frozen = TextureMap(texmap.cell_m, texmap.tile_cells, texmap.max_tiles, texmap.anchor)
+                self.frozen = texmap.empty_like()
             self._place(self.frozen, old, old.pose)
             self.pairs_frozen += 1
 
@@ -126,13 +127,7 @@ class PairPatches:
         at the trajectory ``(stamps (K,) s, poses (K, 3))`` interpolated at its stamp (a pair
         outside the trajectory stays where it is). Returns the map and ``{"pairs_moved",
         "pairs_frozen", "shift_median_m", "shift_max_m"}`` (the kept pairs' moves)."""
-        from .texturer import interpolate_poses
-
-        out = (
-            self.frozen.copy()
-            if self.frozen is not None
-            else TextureMap(like.cell_m, like.tile_cells, like.max_tiles, like.anchor)
-        )
+        out = self.frozen.copy() if self.frozen is not None else like.empty_like()
         st = np.array([p.stamp for p in self.patches])
         new = interpolate_poses(np.asarray(stamps, dtype=np.float64), poses, st) if len(st) else np.zeros((0, 3))
         shifts = []
