@@ -13,6 +13,7 @@ cv2 = pytest.importorskip("cv2")
 
 from pf_slam_nodes.core.geometry import nearest_rotation, rpy_to_matrix  # noqa: E402
 from pf_slam_nodes.core.texture import (  # noqa: E402
+    IncrementalRender,
     StereoRig,
     StereoTexturer,
     TextureConfig,
@@ -209,6 +210,50 @@ def test_render_geometry_fine_coarse_and_layout():
 
 
 # -------------------------------------------------------------------------------- pipeline
+@pytest.mark.parametrize("res", [0.2, 0.1, 0.05])
+def test_incremental_render_equals_a_full_render(res):
+    """The texture node's periodic image drawn again only where tiles changed (and where the map
+    grew) is the full render, pixel for pixel: as the car drives on, as /map grows by whole cells
+    on either side, after an origin moved by a fraction of a cell, on a new map object (the
+    texture placed again) and at another resolution; and it did skip the unchanged blocks."""
+    rng = np.random.default_rng(3)
+    tm = TextureMap(cell_m=0.1, tile_cells=32, max_tiles=10_000, anchor_xy=(0.0, 0.0))
+    inc = IncrementalRender()
+    origin, w, h = np.array([-10.0, -10.0]), int(round(120 / res)), int(round(40 / res))
+    calls = []
+    orig_render = TextureMap.render
+
+    def counting_render(self, *a, **k):
+        calls.append(k.get("only"))
+        return orig_render(self, *a, **k)
+
+    TextureMap.render = counting_render
+    try:
+        for step in range(12):
+            x0 = 8.0 * step  # a 10 m x 6 m patch a step, as a car's pairs
+            tm.add(rng.uniform([x0, 2.0], [x0 + 10.0, 8.0], size=(20_000, 2)), rng.integers(0, 256, (20_000, 3)))
+            if step == 4:  # /map grew west and north by whole cells
+                origin, w, h = origin - [res * 37, 0.0], w + 37, h + 19
+            if step == 7:  # grew east only
+                w += 50
+            if step == 9:  # an origin off by a fraction of a cell: drawn whole
+                origin = origin + [0.3 * res, 0.0]
+            if step == 10:  # the texture placed again: another map object
+                tm = tm.copy()
+            got = inc.render(tm, origin, res, w, h)
+            want = orig_render(tm, origin, res, w, h)
+            np.testing.assert_array_equal(got[0], want[0], err_msg=f"step {step}")
+            np.testing.assert_array_equal(got[1], want[1], err_msg=f"step {step}")
+        got = inc.render(tm, origin, 2 * res, w // 2, h // 2)  # another resolution
+        want = orig_render(tm, origin, 2 * res, w // 2, h // 2)
+        np.testing.assert_array_equal(got[0], want[0])
+    finally:
+        TextureMap.render = orig_render
+    incremental = [c for c in calls if c is not None]
+    assert len(incremental) >= 8  # all but the first, the fractional shift, the new map, the resolution
+    assert all(len(changed) < len(tm.tiles) / 2 for changed, _ in incremental)
+
+
 def test_synthetic_flat_world_texture_and_plane():
     """Rendered stereo pairs of a textured plane: the plane comes back, the texture matches the
     floor (cell means), the lane edge is straight."""

@@ -31,6 +31,7 @@ import numpy as np
 from ..core.texture import (
     DepthCamera,
     DepthTexturer,
+    IncrementalRender,
     PairPatches,
     StereoRig,
     StereoTexturer,
@@ -49,6 +50,7 @@ class TextureEngine:
     def __init__(self, cfg: TextureConfig) -> None:
         self.cfg = cfg
         self.texmap = TextureMap.from_config(cfg)
+        self.renderer = IncrementalRender()  # the periodic image: only changed tiles drawn again
         self.texturer: StereoTexturer | DepthTexturer | None = None
         budget = int(cfg.replace_budget_mb * 2**20)
         self.kept = PairPatches(cfg.replace_bin_m, budget) if budget > 0 else None
@@ -110,7 +112,7 @@ class TextureEngine:
         return {"ms_stages": {}, "plane_fitted": bool(res.plane_fitted), **self.stats()}
 
     def render(self, origin: tuple[float, float], resolution: float, width: int, height: int):
-        return self.texmap.render(origin, resolution, width, height)
+        return self.renderer.render(self.texmap, origin, resolution, width, height)
 
     def render_native(self):
         return self.texmap.render_native()

@@ -58,7 +58,7 @@ Modules (by stage): :mod:`.config` (:class:`TextureConfig`), :mod:`.rig` (:class
 :mod:`.images` (stages 1-2: :func:`debayer`, :func:`grey`, :func:`detect_rectified`),
 :mod:`.texturer` (stages 1-6 per pair: :class:`StereoTexturer`; :func:`interpolate_poses`),
 :mod:`.ground` (stage 5: :class:`Plane`, :func:`fit_ground_plane`), :mod:`.map` (stage 7:
-:class:`TextureMap`; :func:`north_up_bgr`, :func:`overlay_occupancy`), :mod:`.patches` (stage 8:
+:class:`TextureMap`, :class:`IncrementalRender`; :func:`north_up_bgr`, :func:`overlay_occupancy`), :mod:`.patches` (stage 8:
 :class:`PairPatches`), :mod:`.evaluation`
 (:func:`measure_stereo_pair`, :func:`visible_ground_mask`, :func:`colour_error`). No file I/O
 here: the rig from the KAIST ``param/`` files is :func:`pf_slam_nodes.io.calib.read_stereo_rig`,
@@ -72,7 +72,7 @@ from .depth import DepthCamera, DepthFrameResult, DepthTexturer
 from .evaluation import PairMeasurement, colour_error, measure_stereo_pair, road_region_mask, visible_ground_mask
 from .ground import Plane, fit_ground_plane
 from .images import debayer, detect_rectified, grey
-from .map import TextureMap, north_up_bgr, overlay_occupancy
+from .map import IncrementalRender, TextureMap, north_up_bgr, overlay_occupancy
 from .patches import PairPatches
 from .rig import StereoRig
 from .texturer import FrameResult, StereoTexturer, interpolate_poses
@@ -83,6 +83,7 @@ __all__ = [
     "DepthFrameResult",
     "DepthTexturer",
     "FrameResult",
+    "IncrementalRender",
     "PairMeasurement",
     "PairPatches",
     "Plane",

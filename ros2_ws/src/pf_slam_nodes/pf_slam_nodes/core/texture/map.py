@@ -46,8 +46,12 @@ class TextureMap:
         self.anchor = np.asarray(anchor_xy, dtype=np.float64).reshape(2).copy()
         #: (tx, ty) -> (mean (T, T, 3) float32, count (T, T) float32); row = y, column = x
         self.tiles: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        #: (tx, ty) -> how many times the tile was changed (:class:`IncrementalRender` redraws
+        #: only the changed ones)
+        self.versions: dict[tuple[int, int], int] = {}
         self.samples_added = 0
         self.samples_dropped = 0
+        self.cells_covered = 0  # cells with at least one sample
 
     @classmethod
     def from_config(
@@ -73,7 +77,9 @@ class TextureMap:
         """An independent copy (tiles and counters)."""
         out = self.empty_like()
         out.tiles = {k: (m.copy(), c.copy()) for k, (m, c) in self.tiles.items()}
+        out.versions = dict(self.versions)
         out.samples_added, out.samples_dropped = self.samples_added, self.samples_dropped
+        out.cells_covered = self.cells_covered
         return out
 
     def add(self, xy: np.ndarray, rgb: np.ndarray, weights: np.ndarray | None = None) -> int:
@@ -145,10 +151,13 @@ class TextureMap:
                 self.tiles[tk] = tile
             mean, count = tile
             jj, ii = cj[g] - tk[1] * t, ci[g] - tk[0] * t
-            c_new = count[jj, ii] + nt
+            c_old = count[jj, ii]
+            self.cells_covered += int(np.count_nonzero(c_old == 0))
+            c_new = c_old + nt
             m = mean[jj, ii]
             mean[jj, ii] = m + ((ss_all[g] - nt[:, None] * m) / c_new[:, None]).astype(np.float32)
             count[jj, ii] = c_new
+            self.versions[tk] = self.versions.get(tk, 0) + 1
             added += n_here
         self.samples_added += added
         return added
@@ -165,10 +174,16 @@ class TextureMap:
 
     def cell_count(self) -> int:
         """Cells with at least one sample."""
-        return int(sum(int((c > 0).sum()) for _, c in self.tiles.values()))
+        return self.cells_covered
 
     def render(
-        self, origin_xy: tuple[float, float] | np.ndarray, resolution: float, width: int, height: int
+        self,
+        origin_xy: tuple[float, float] | np.ndarray,
+        resolution: float,
+        width: int,
+        height: int,
+        into: tuple[np.ndarray, np.ndarray] | None = None,
+        only: tuple[set, tuple[int, int, int, int]] | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """The texture in a map geometry (``OccupancyGrid`` layout, row 0 = lowest y).
 
@@ -176,6 +191,12 @@ class TextureMap:
         texture cells whose centres fall in it; a finer (or similar) one takes the texture cell
         containing its centre (exact when the grids are aligned). Work memory is per block of
         256 x 256 output cells; only the output itself (4 bytes per cell) is whole.
+
+        ``into``: ``(rgb, covered)`` of this geometry to draw in (default: new, empty);
+        ``only``: ``(tiles, (c0, r0, c1, r1))``: draw only the output blocks that one of these
+        tile keys meets or that are not wholly inside that cell rectangle (each such block is
+        drawn whole, from all its tiles); the rest of ``into`` is kept (see
+        :class:`IncrementalRender`).
 
         Returns
         -------
@@ -191,9 +212,13 @@ class TextureMap:
         t, cm = self.tile_cells, self.cell_m
         ext = t * cm
         coarse = res >= 1.5 * cm
-        rgb = np.zeros((h, w, 3), np.uint8)
-        covered = np.zeros((h, w), bool)
-        blk = 256
+        if into is None:
+            rgb, covered = np.zeros((h, w, 3), np.uint8), np.zeros((h, w), bool)
+        else:
+            rgb, covered = into
+            if rgb.shape != (h, w, 3) or covered.shape != (h, w):
+                raise ValueError(f"render into {rgb.shape} / {covered.shape}, the geometry is {w} x {h}")
+        blk = 256 if only is None else 64
         # output cell range each tile can write, and the output blocks it meets
         jobs: dict[tuple[int, int], list] = {}
         for key in self.tiles:
@@ -214,6 +239,11 @@ class TextureMap:
         for (bx, by), tiles in jobs.items():
             c0, r0 = bx * blk, by * blk
             c1, r1 = min(c0 + blk, w), min(r0 + blk, h)
+            if only is not None:
+                changed, (k0, q0, k1, q1) = only
+                inside = k0 <= c0 and c1 <= k1 and q0 <= r0 and r1 <= q1
+                if inside and not any(key in changed for key, _ in tiles):
+                    continue
             bw, bh = c1 - c0, r1 - r0
             if coarse:
                 sums = np.zeros((bh * bw, 3), np.float64)
@@ -268,6 +298,52 @@ class TextureMap:
         n = np.rint((np.array(b[2:]) - np.array(b[:2])) / self.cell_m).astype(int)
         rgb, cov = self.render(b[:2], self.cell_m, int(n[0]), int(n[1]))
         return rgb, cov, np.array(b[:2])
+
+
+class IncrementalRender:
+    """A :class:`TextureMap` rendered in a map geometry again and again (the texture node's
+    periodic image): each call draws only the output blocks whose tiles changed since the
+    previous call (:attr:`TextureMap.versions`) and those newly in view; the rest is copied
+    from the previous image, shifted when the map grew by whole cells. Another map object, a
+    new resolution or an origin moved by a fraction of a cell: drawn whole.
+
+    The result is the same as :meth:`TextureMap.render`'s; each call returns new arrays, which
+    the next call reads (do not modify them).
+    """
+
+    def __init__(self) -> None:
+        self._last: tuple | None = None  # (map, origin, resolution, rgb, covered, versions)
+
+    def render(
+        self,
+        texmap: TextureMap,
+        origin_xy: tuple[float, float] | np.ndarray,
+        resolution: float,
+        width: int,
+        height: int,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        o = np.asarray(origin_xy, dtype=np.float64).reshape(-1)[:2].copy()
+        res, w, h = float(resolution), int(width), int(height)
+        last, only = self._last, None
+        rgb, cov = np.zeros((h, w, 3), np.uint8), np.zeros((h, w), bool)
+        if last is not None and last[0] is texmap and last[2] == res:
+            shift = (last[1] - o) / res  # the previous image's cell (0, 0) in this one
+            di = np.rint(shift)
+            if np.abs(shift - di).max() < 1e-3:  # /map's resolution is a float32
+                dc, dr = int(di[0]), int(di[1])
+                prgb, pcov = last[3], last[4]
+                ph, pw = pcov.shape
+                c0, c1 = max(dc, 0), min(dc + pw, w)
+                r0, r1 = max(dr, 0), min(dr + ph, h)
+                if c0 < c1 and r0 < r1:
+                    rgb[r0:r1, c0:c1] = prgb[r0 - dr : r1 - dr, c0 - dc : c1 - dc]
+                    cov[r0:r1, c0:c1] = pcov[r0 - dr : r1 - dr, c0 - dc : c1 - dc]
+                    versions = last[5]
+                    changed = {k for k, v in texmap.versions.items() if versions.get(k) != v}
+                    only = (changed, (c0, r0, c1, r1))
+        texmap.render(o, res, w, h, into=(rgb, cov), only=only)
+        self._last = (texmap, o, res, rgb, cov, dict(texmap.versions))
+        return rgb, cov
 
 
 # --------------------------------------------------------------------------------------------
