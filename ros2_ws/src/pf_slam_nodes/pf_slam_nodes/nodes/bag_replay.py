@@ -91,6 +91,9 @@ class BagReplay(Node):
         self.images_published = 0
         self.texture_progress = (0, 0)  # [pairs finished, pairs waiting for a pose] (texture node)
         self.texture_waits = 0  # times the replay stopped for the texture node
+        # wall seconds the replay stood still in rate max: for the SLAM nodes, for the texture node
+        self.waited_s = {"pipeline": 0.0, "texture": 0.0}
+        self._stalled: tuple[str, float] | None = None
         self.clock_period_ns = int(param(self, "clock_period_s", 0.01) * 1e9)
         self.start_delay_s = float(param(self, "start_delay_s", 0.0))
         self.ready_at: float | None = None  # when graph_ready() first held (monotonic)
@@ -171,6 +174,10 @@ class BagReplay(Node):
                 return
             self.started = True
             self.t0_wall = time.monotonic()
+        if self._stalled is not None:
+            kind, since = self._stalled
+            self.waited_s[kind] += time.monotonic() - since
+            self._stalled = None
         for _ in range(budget):
             if self.pending is None:
                 try:
@@ -188,6 +195,7 @@ class BagReplay(Node):
                 and self.scans_published - self.scans_processed >= self.max_in_flight
             ):
                 self.timer.cancel()  # resumed by _on_progress
+                self._stalled = ("pipeline", time.monotonic())
                 if self.stall_sent_at != self.scans_published:
                     self.stall_sent_at = self.scans_published
                     stall = self._counts(done=False)  # + the poses it had: stopped until the next one
@@ -197,6 +205,7 @@ class BagReplay(Node):
                 return
             if topic == self.image_topic and self.rate is None and self._texture_busy():
                 self.timer.cancel()  # resumed by _on_texture_progress
+                self._stalled = ("texture", time.monotonic())
                 self.texture_waits += 1
                 return
             if self.rate is not None:
@@ -241,7 +250,9 @@ class BagReplay(Node):
         self.timer.cancel()
         self.pub_status.publish(self._counts(done=True))
         self.get_logger().info(
-            f"end of bag: {sum(self.published.values())} messages, {self.scans_published} scans published"
+            f"end of bag: {sum(self.published.values())} messages, {self.scans_published} scans published; "
+            f"stood {self.waited_s['pipeline']:.1f} s for the SLAM nodes, {self.waited_s['texture']:.1f} s for the "
+            "texture node"
         )
 
     def _restamped(self, raw: bytes, record_ns: int, fix) -> bytes:
