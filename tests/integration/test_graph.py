@@ -75,7 +75,10 @@ def test_sample_bag_pose_error_and_map(sample_run):
     assert _fraction_near(pts, gt_occ, gr, go, 0.151) > 0.95
     # outputs a user expects
     assert (out / "map.pgm").is_file() and (out / "summary.json").is_file()
-    assert list((out / "snapshots").glob("*.png"))
+    # snapshots every 30 s of bag time (the default), and the final one
+    shots = sorted((out / "snapshots").glob("scan_*.png"))
+    assert len(shots) == int(s["bag_duration_s"] // 30) and (out / "snapshots" / "final.png").is_file()
+    assert s["snapshots_written"] == len(shots) + 1
     # per-stage split of a scan: every stage ran, and the parts add up to the wall time
     split = s["stage_ms_per_scan"]
     assert set(split) == {"predict", "correlate", "resample", "map", "field", "loops", "messaging"}

@@ -105,7 +105,13 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="do not run the texture node (stereo topics in the bag are then ignored)",
     )
-    r.add_argument("--snapshot-every", type=int, default=200, help="snapshot PNG every N scans (0: none)")
+    r.add_argument(
+        "--snapshot-every",
+        type=_snapshot_every,
+        default="30s",
+        metavar="N|Ns",
+        help="snapshot PNG every N scans, or every N seconds of bag time (default 30s; 0: none)",
+    )
     for role, what in (
         ("scan", "sensor_msgs/LaserScan"),
         ("odom", "nav_msgs/Odometry"),
@@ -263,6 +269,17 @@ def build_parser() -> argparse.ArgumentParser:
         "the command and the commit",
     )
     return p
+
+
+def _snapshot_every(text: str) -> str:
+    """argparse type of --snapshot-every: checked here, kept as written (N or Ns)."""
+    from .runner.common import snapshot_cadence
+
+    try:
+        snapshot_cadence(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return text
 
 
 def _add_live_parsers(sub) -> None:

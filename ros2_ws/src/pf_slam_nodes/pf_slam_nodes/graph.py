@@ -94,7 +94,7 @@ def run(
     rate: str = "max",
     processes: str = "single",
     overrides: dict[str, dict[str, Any]] | None = None,
-    snapshot_every: int = 200,
+    snapshot_every: int | str = "30s",
     progress: bool = True,
     idle_timeout_s: float = 60.0,
     drain_timeout_s: float = 5.0,
@@ -109,7 +109,8 @@ def run(
 ) -> RunResult:
     """Replay `bag` through the graph and write the outputs into `out_dir`; returns the summary.
 
-    `record`: also write result.mcap (ResultRecorder), with a map every `record_map_every_s`
+    `snapshot_every`: a snapshot PNG every N scans (int) or every N seconds of bag time ("30s");
+    0: none. `record`: also write result.mcap (ResultRecorder), with a map every `record_map_every_s`
     of bag time (default: bag duration / 20). `input_topics`: the bag's topic per input
     ({'scan': '/front/scan', 'odom': ...}; also `topics.*` in the parameter file), see
     select_inputs(). `domain_id`: run on that ROS domain with the normal discovery (as does a set

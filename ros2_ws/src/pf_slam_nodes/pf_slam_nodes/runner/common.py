@@ -13,6 +13,47 @@ class RunError(Exception):
     """A run cannot start or did not complete; the message says why."""
 
 
+def snapshot_cadence(value: int | str) -> tuple[int, float]:
+    """``--snapshot-every``: ``N`` (every N scans) or ``"Ns"`` (every N seconds of bag time); 0
+    (or ``"0s"``): none. Returns ``(scans, seconds)``, one of them 0."""
+    text = str(value).strip()
+    try:
+        if text.endswith("s"):
+            sec = float(text[:-1])
+            if sec >= 0 and sec == sec and sec != float("inf"):
+                return 0, sec
+        else:
+            n = int(text)
+            if n >= 0:
+                return n, 0.0
+    except ValueError:
+        pass
+    raise ValueError(f"--snapshot-every: {value!r} is neither a scan count N >= 0 nor seconds of bag time like '30s'")
+
+
+class SnapshotCadence:
+    """When `pf-slam run` writes a snapshot: ``due(k, stamp_ns)`` for the k-th pose (1-based) at
+    its stamp is True every N scans, or at the first pose at least N seconds of bag time after
+    the previous snapshot's due time (the first one N seconds after the first pose)."""
+
+    def __init__(self, every: int | str) -> None:
+        self.scans, seconds = snapshot_cadence(every)
+        self.period_ns = int(round(seconds * 1e9))
+        self._next_ns: int | None = None
+
+    def __call__(self, k: int, stamp_ns: int) -> bool:
+        if self.scans:
+            return k % self.scans == 0
+        if not self.period_ns:
+            return False
+        if self._next_ns is None:
+            self._next_ns = stamp_ns + self.period_ns
+        if stamp_ns < self._next_ns:
+            return False
+        self._next_ns += self.period_ns * ((stamp_ns - self._next_ns) // self.period_ns + 1)
+        return True
+
+
 #: The graph's inputs: the nodes' (relative) topic name -> the message types it takes
 INPUT_TYPES: dict[str, tuple[str, ...]] = {
     "scan": ("sensor_msgs/msg/LaserScan",),
@@ -52,7 +93,7 @@ class RunPlan:
     executor: str
     record: bool
     record_map_every_s: float | None
-    snapshot_every: int
+    snapshot_every: int | str
     progress: bool
     idle_timeout_s: float
     drain_timeout_s: float

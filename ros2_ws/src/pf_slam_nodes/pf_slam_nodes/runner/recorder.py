@@ -15,6 +15,7 @@ import numpy as np
 from ..io.bag import stamp_ns_of
 from ..io.mapfile import render_snapshot
 from ..ros import cdr
+from .common import SnapshotCadence
 
 
 class _Recorder:
@@ -26,7 +27,7 @@ class _Recorder:
         out_dir: Path,
         scans_total: int,
         bag_duration_s: float,
-        snapshot_every: int,
+        snapshot_every: int | str,
         progress: bool,
         texture: bool = False,
         loops: bool = False,
@@ -42,7 +43,8 @@ class _Recorder:
         self.out_dir = out_dir
         self.scans_total = scans_total
         self.bag_duration_s = bag_duration_s
-        self.snapshot_every = snapshot_every
+        self.snapshot_due = SnapshotCadence(snapshot_every)  # every N scans or N s of bag time
+        self._tty = sys.stderr.isatty()
         self.progress = progress
         self.stamps: list[int] = []
         self.poses: list[np.ndarray] = []
@@ -124,7 +126,7 @@ class _Recorder:
         self.stamps.append(stamp)
         self.poses.append(pose)
         k = len(self.poses)
-        if self.snapshot_every and k % self.snapshot_every == 0 and self.map_msg is not None:
+        if self.snapshot_due(k, stamp) and self.map_msg is not None:
             self.snapshot(f"scan_{k:06d}.png")
         self.print_progress()
 
@@ -173,7 +175,7 @@ class _Recorder:
 
     def print_progress(self, final: bool = False) -> None:
         now = time.monotonic()
-        tty = sys.stderr.isatty()
+        tty = self._tty
         if not self.progress or (not final and now - self._last_print < (0.5 if tty else 10.0)):
             return
         self._last_print = now
