@@ -36,3 +36,11 @@ def test_snapshots_by_bag_time_whatever_the_scan_rate():
 def test_a_gap_in_the_bag_gives_one_snapshot_not_a_burst():
     stamps = [0.0, 10.0, 20.0, 25.0, 100.0, 101.0, 130.0]  # 25 -> 100 s: no scans
     assert due_at("10s", stamps) == [2, 3, 5, 7]
+
+
+def test_a_bad_cadence_stops_the_run_before_it_starts(tmp_path):
+    from pf_slam_nodes.graph import RunError, run
+
+    with pytest.raises(RunError, match="'3m' is neither"):
+        run(str(tmp_path / "no_bag"), tmp_path / "out", snapshot_every="3m")
+    assert not (tmp_path / "out").exists()

@@ -27,7 +27,15 @@ from .io.bag import bag_info
 from .ros.domain import RosDomain, run_domain
 
 # the parts, under their old names (graph.X)
-from .runner.common import DEFAULT_INPUTS, INPUT_TYPES, NODE_NAMES, TEXTURE_INPUT, RunError, RunPlan  # noqa: F401
+from .runner.common import (  # noqa: F401
+    DEFAULT_INPUTS,
+    INPUT_TYPES,
+    NODE_NAMES,
+    TEXTURE_INPUT,
+    RunError,
+    RunPlan,
+    snapshot_cadence,
+)
 from .runner.inputs import (  # noqa: F401
     ROLE_WORDS,
     STAMP_JUMP_NS,
@@ -123,6 +131,10 @@ def run(
     params_file < overrides."""
     if processes not in ("single", "multi"):
         raise RunError(f"--processes must be 'single' or 'multi', got {processes!r}")
+    try:
+        snapshot_cadence(snapshot_every)
+    except ValueError as e:
+        raise RunError(str(e)) from None
     keep_freed_memory()  # the graph's nodes run in this process (single) or each in its own (run_node)
     plan = _plan(
         bag,

@@ -32,8 +32,8 @@ def snapshot_cadence(value: int | str) -> tuple[int, float]:
 
 
 class SnapshotCadence:
-    """When `pf-slam run` writes a snapshot: ``due(k, stamp_ns)`` for the k-th pose (1-based) at
-    its stamp is True every N scans, or at the first pose at least N seconds of bag time after
+    """When `pf-slam run` writes a snapshot: called with the k-th pose (1-based) and its stamp
+    (ns), True every N scans, or at the first pose at least N seconds of bag time after
     the previous snapshot's due time (the first one N seconds after the first pose)."""
 
     def __init__(self, every: int | str) -> None:
