@@ -217,3 +217,13 @@ def test_car_sample_encoders_fog_tilted_lidar(tmp_path, ros_domain):
 
     tex = cv2.imread(str(tmp_path / "car" / "texture.png"))
     assert tex.shape[:2] == occ.shape  # the /map geometry
+    # result.mcap: the texture image at most once per map interval of bag time (bag / 20), and the
+    # last one recorded is the final texture
+    from pf_slam_nodes.core.texture import north_up_bgr
+    from pf_slam_nodes.io.bag import deserialize, read_bag
+
+    images = [(t, raw) for topic, _, t, raw in read_bag(tmp_path / "car" / "result.mcap") if topic == "/texture"]
+    assert 1 <= len(images) <= 21 and s["result_mcap"]["messages"]["/texture"] == len(images)
+    last = deserialize(images[-1][1], "sensor_msgs/msg/Image")
+    rgb = np.frombuffer(bytes(last.data), np.uint8).reshape(last.height, last.width, 3)
+    np.testing.assert_array_equal(north_up_bgr(rgb), tex)

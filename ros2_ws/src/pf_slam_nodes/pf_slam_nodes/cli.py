@@ -148,7 +148,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--record-map-every",
         type=float,
         metavar="S",
-        help="result.mcap: a /map every S seconds of bag time (default: bag duration / 20; the final map always)",
+        help="result.mcap: a /map and a texture image every S seconds of bag time (default: bag duration / 20; "
+        "the final ones always)",
     )
 
     _add_live_parsers(sub)

@@ -195,8 +195,10 @@ class ResultRecorder:
     the run in Foxglove Studio (or ``ros2 bag play``) and scrubs through it.
 
     Subscribes raw (the CDR bytes go to the file as received: no message objects per scan at the
-    car's 100 Hz): the scan topic, pose, path, /tf, /tf_static, map (at most one per
-    ``map_every_s`` of bag time, always the final one) and the texture image. Log times are the
+    car's 100 Hz): the scan topic, pose, path, /tf, /tf_static, map and texture image (each at
+    most one per ``map_every_s`` of bag time, always the last one: a car's are megabytes, and the
+    texture node publishes once a second of wall time, so at real time a 5 min drive would carry
+    300 images of 6 MB). Log times are the
     messages' header stamps (bag time). It announces itself on pf_slam/ready once its streams
     are matched, so the replay waits for it and nothing is missed.
     """
@@ -227,6 +229,8 @@ class ResultRecorder:
         self.bag = self._cm.__enter__()
         self.map_every_ns = int(map_every_s * 1e9)
         self.last_map_ns: int | None = None
+        self.last_texture_ns: int | None = None
+        self._held_texture: tuple[str, int, bytes] | None = None  # the newest one not written yet
         self.last_stamp = 0
         # topic, type, QoS, matched publishers to wait for (volatile topics only)
         streams: list[tuple[str, str, QoSProfile, int]] = [
@@ -244,7 +248,13 @@ class ResultRecorder:
         needs = []
         for topic, msgtype, profile, wait in streams:
             self.bag.add_connection(topic, msgtype, latched=profile.durability == qos.latched().durability)
-            cb = self._on_map if topic == "/" + topics.MAP else self._writer_for(topic, msgtype)
+            cb = (
+                self._on_map
+                if topic == "/" + topics.MAP
+                else self._texture_writer(topic)
+                if msgtype == "sensor_msgs/msg/Image"
+                else self._writer_for(topic, msgtype)
+            )
             if topic == "/" + topics.POSE and pose_feed is not None:
                 pose_feed.pose_listeners.append(cb)
                 needs.append((pose_feed.pose_subscription, wait))
@@ -264,6 +274,27 @@ class ResultRecorder:
             self.bag.write_raw(topic, self.last_stamp if stamp is None else stamp, raw)
 
         return write
+
+    def _texture_writer(self, topic: str):
+        """The texture image at most every map_every_ns of bag time; the newest one not written is
+        held and written when the recording closes (the final texture)."""
+        from ..ros import convert
+
+        def write(raw: bytes) -> None:
+            stamp = convert.stamp_ns_from_cdr(raw)
+            if self.last_texture_ns is None or stamp - self.last_texture_ns >= self.map_every_ns:
+                self.bag.write_raw(topic, stamp, raw)
+                self.last_texture_ns, self._held_texture = stamp, None
+            else:
+                self._held_texture = (topic, stamp, raw)
+
+        return write
+
+    def flush_texture(self) -> None:
+        """Write the held texture image (the newest one, thinned out by bag time), if any."""
+        if self._held_texture is not None:
+            self.bag.write_raw(*self._held_texture)
+            self._held_texture = None
 
     def _on_map(self, raw: bytes) -> None:
         """A map at most every map_every_ns of bag time (a car map is megabytes); the final one
@@ -295,6 +326,7 @@ class ResultRecorder:
     def close(self) -> None:
         if self._cm is None:
             return
+        self.flush_texture()
         self._cm.__exit__(None, None, None)
         self._cm = None
         (mcap,) = self._bag_dir.glob("*.mcap")
