@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..scan import transform_points
 from .map import TextureMap
 from .texturer import interpolate_poses
 
@@ -37,14 +38,6 @@ class _Patch:
     @property
     def nbytes(self) -> int:
         return self.qx.nbytes + self.qy.nbytes + self.rgb.nbytes + self.n.nbytes
-
-
-def _to_world(qx: np.ndarray, qy: np.ndarray, bin_m: float, pose: np.ndarray) -> np.ndarray:
-    """Bin centres (vehicle frame) -> world ``(N, 2)`` at ``pose``."""
-    x, y, th = (float(v) for v in pose)
-    c, s = math.cos(th), math.sin(th)
-    vx, vy = (qx + 0.5) * bin_m, (qy + 0.5) * bin_m
-    return np.column_stack([x + c * vx - s * vy, y + s * vx + c * vy])
 
 
 class PairPatches:
@@ -120,7 +113,8 @@ class PairPatches:
             self.pairs_frozen += 1
 
     def _place(self, texmap: TextureMap, p: _Patch, pose: np.ndarray) -> None:
-        texmap.add(_to_world(p.qx.astype(np.float64), p.qy.astype(np.float64), self.bin_m, pose), p.rgb, p.n)
+        centres = np.column_stack([(p.qx + 0.5) * self.bin_m, (p.qy + 0.5) * self.bin_m])  # vehicle frame
+        texmap.add(transform_points(centres, pose), p.rgb, p.n)
 
     def replace(self, stamps: np.ndarray, poses: np.ndarray, like: TextureMap) -> tuple[TextureMap, dict]:
         """A new texture map (``like``'s geometry): the frozen pairs as they are, every kept pair
