@@ -36,10 +36,10 @@ def test_texture_images_are_thinned_by_bag_time_and_the_last_one_kept():
     rec = object.__new__(ResultRecorder)  # the writing logic only: no node, no file
     rec.bag = _Writer()
     rec.map_every_ns, rec.last_texture_ns, rec._held_texture = int(15e9), None, None
-    write = rec._texture_writer("/texture")
+    rec.texture_topic = "/texture"
     for k in range(300):  # one a second of bag time (real time), the last one the final texture
-        write(_image(1000.0 + k, k % 250))
-    write(_image(1299.0, 251))  # placed again at the end: same stamp, other content
+        rec._on_texture(_image(1000.0 + k, k % 250))
+    rec._on_texture(_image(1299.0, 251))  # placed again at the end: same stamp, other content
     assert len(rec.bag.rows) == 20  # at 0, 15, ..., 285 s
     rec.flush_texture()  # what close() does first
     assert len(rec.bag.rows) == 21 and rec.bag.rows[-1][2] == _image(1299.0, 251)

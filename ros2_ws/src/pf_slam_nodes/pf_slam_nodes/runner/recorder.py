@@ -219,6 +219,7 @@ class ResultRecorder:
 
         from ..io.bag import open_writer
         from ..nodes.common import announce_when_matched
+        from ..nodes.texture import TEXTURE
         from ..ros import qos, topics
 
         self.path = path
@@ -230,7 +231,8 @@ class ResultRecorder:
         self.map_every_ns = int(map_every_s * 1e9)
         self.last_map_ns: int | None = None
         self.last_texture_ns: int | None = None
-        self._held_texture: tuple[str, int, bytes] | None = None  # the newest one not written yet
+        self.texture_topic = "/" + TEXTURE
+        self._held_texture: tuple[int, bytes] | None = None  # (stamp, raw): the newest one not written yet
         self.last_stamp = 0
         # topic, type, QoS, matched publishers to wait for (volatile topics only)
         streams: list[tuple[str, str, QoSProfile, int]] = [
@@ -242,19 +244,12 @@ class ResultRecorder:
             ("/" + topics.MAP, "nav_msgs/msg/OccupancyGrid", qos.latched(), 0),
         ]
         if texture:
-            from ..nodes.texture import TEXTURE
-
-            streams.append(("/" + TEXTURE, "sensor_msgs/msg/Image", qos.latched(), 0))
+            streams.append((self.texture_topic, "sensor_msgs/msg/Image", qos.latched(), 0))
         needs = []
+        thinned = {"/" + topics.MAP: self._on_map, self.texture_topic: self._on_texture}  # by bag time
         for topic, msgtype, profile, wait in streams:
             self.bag.add_connection(topic, msgtype, latched=profile.durability == qos.latched().durability)
-            cb = (
-                self._on_map
-                if topic == "/" + topics.MAP
-                else self._texture_writer(topic)
-                if msgtype == "sensor_msgs/msg/Image"
-                else self._writer_for(topic, msgtype)
-            )
+            cb = thinned.get(topic) or self._writer_for(topic, msgtype)
             if topic == "/" + topics.POSE and pose_feed is not None:
                 pose_feed.pose_listeners.append(cb)
                 needs.append((pose_feed.pose_subscription, wait))
@@ -275,25 +270,26 @@ class ResultRecorder:
 
         return write
 
-    def _texture_writer(self, topic: str):
+    def _due(self, last_ns: int | None, stamp: int) -> bool:
+        """A thinned-out stream (map, texture image): the first message, then one per map_every_ns."""
+        return last_ns is None or stamp - last_ns >= self.map_every_ns
+
+    def _on_texture(self, raw: bytes) -> None:
         """The texture image at most every map_every_ns of bag time; the newest one not written is
         held and written when the recording closes (the final texture)."""
         from ..ros import convert
 
-        def write(raw: bytes) -> None:
-            stamp = convert.stamp_ns_from_cdr(raw)
-            if self.last_texture_ns is None or stamp - self.last_texture_ns >= self.map_every_ns:
-                self.bag.write_raw(topic, stamp, raw)
-                self.last_texture_ns, self._held_texture = stamp, None
-            else:
-                self._held_texture = (topic, stamp, raw)
-
-        return write
+        stamp = convert.stamp_ns_from_cdr(raw)
+        if self._due(self.last_texture_ns, stamp):
+            self.bag.write_raw(self.texture_topic, stamp, raw)
+            self.last_texture_ns, self._held_texture = stamp, None
+        else:
+            self._held_texture = (stamp, raw)
 
     def flush_texture(self) -> None:
         """Write the held texture image (the newest one, thinned out by bag time), if any."""
         if self._held_texture is not None:
-            self.bag.write_raw(*self._held_texture)
+            self.bag.write_raw(self.texture_topic, *self._held_texture)
             self._held_texture = None
 
     def _on_map(self, raw: bytes) -> None:
@@ -304,7 +300,7 @@ class ResultRecorder:
         stamp = convert.stamp_ns_from_cdr(raw)
         if stamp == 0:  # a fixed map (localization) published before any scan: its later copies carry stamps
             return
-        if self.last_map_ns is None or stamp - self.last_map_ns >= self.map_every_ns:
+        if self._due(self.last_map_ns, stamp):
             self.bag.write_raw("/map", stamp, raw)
             self.last_map_ns = stamp
 
