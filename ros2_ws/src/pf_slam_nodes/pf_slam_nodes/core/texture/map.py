@@ -3,6 +3,8 @@ and the images made from it (north-up BGR for a PNG, overlay with the occupancy 
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from .config import TextureConfig
@@ -300,6 +302,17 @@ class TextureMap:
         return rgb, cov, np.array(b[:2])
 
 
+class _Drawn(NamedTuple):
+    """What :class:`IncrementalRender` drew last: of which map, in which geometry, from which tiles."""
+
+    texmap: TextureMap
+    origin: np.ndarray
+    resolution: float
+    rgb: np.ndarray
+    covered: np.ndarray
+    versions: dict
+
+
 class IncrementalRender:
     """A :class:`TextureMap` rendered in a map geometry again and again (the texture node's
     periodic image): each call draws only the output blocks whose tiles changed since the
@@ -312,7 +325,7 @@ class IncrementalRender:
     """
 
     def __init__(self) -> None:
-        self._last: tuple | None = None  # (map, origin, resolution, rgb, covered, versions)
+        self._last: _Drawn | None = None
 
     def render(
         self,
@@ -326,23 +339,22 @@ class IncrementalRender:
         res, w, h = float(resolution), int(width), int(height)
         last, only = self._last, None
         rgb, cov = np.zeros((h, w, 3), np.uint8), np.zeros((h, w), bool)
-        if last is not None and last[0] is texmap and last[2] == res:
-            shift = (last[1] - o) / res  # the previous image's cell (0, 0) in this one
+        if last is not None and last.texmap is texmap and last.resolution == res:
+            shift = (last.origin - o) / res  # the previous image's cell (0, 0) in this one
             di = np.rint(shift)
             if np.abs(shift - di).max() < 1e-3:  # /map's resolution is a float32
                 dc, dr = int(di[0]), int(di[1])
-                prgb, pcov = last[3], last[4]
+                prgb, pcov = last.rgb, last.covered
                 ph, pw = pcov.shape
                 c0, c1 = max(dc, 0), min(dc + pw, w)
                 r0, r1 = max(dr, 0), min(dr + ph, h)
                 if c0 < c1 and r0 < r1:
                     rgb[r0:r1, c0:c1] = prgb[r0 - dr : r1 - dr, c0 - dc : c1 - dc]
                     cov[r0:r1, c0:c1] = pcov[r0 - dr : r1 - dr, c0 - dc : c1 - dc]
-                    versions = last[5]
-                    changed = {k for k, v in texmap.versions.items() if versions.get(k) != v}
+                    changed = {k for k, v in texmap.versions.items() if last.versions.get(k) != v}
                     only = (changed, (c0, r0, c1, r1))
         texmap.render(o, res, w, h, into=(rgb, cov), only=only)
-        self._last = (texmap, o, res, rgb, cov, dict(texmap.versions))
+        self._last = _Drawn(texmap, o, res, rgb, cov, dict(texmap.versions))
         return rgb, cov
 
 
