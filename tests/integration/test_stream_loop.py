@@ -134,7 +134,8 @@ def test_loop_closure_stream_loop_equals_graph(tmp_path, ros_domain):
     """loops.enabled with a re-rendering at every closed loop (rebuild_m 0; loop edges trusted
     to a millimetre, so every one disagrees enough with the chain to be solved at once): the
     mapper's frame change reaches the correlator (the marker, then the whole map) exactly where
-    the loop's does; the poses as published are the same, and so is the final trajectory."""
+    the loop's does; the poses as published are the same, and so is the final trajectory (the
+    graph's matches in the mapper's worker process, the loop's in this one)."""
     params = tmp_path / "sample_loops.yaml"
     params.write_text(
         (CONFIG / "sim_indoor.yaml").read_text()
@@ -149,6 +150,7 @@ def test_loop_closure_stream_loop_equals_graph(tmp_path, ros_domain):
     stamps = np.array([s for s, _ in stream])
     final = slam.trajectory(stamps / 1e9, np.array([p for _, p in stream]))  # (+ the end's rendering, if due)
     assert res.summary["loops"]["map_renders"] == slam.mapper.rebuilds
+    assert res.summary["loops"]["matched_in"] == "process"  # the node's default: a worker process
     t, p = read_trajectory(tmp_path / "sample" / "trajectory.tum")[:2]
     assert np.allclose(t, stamps / 1e9, atol=1e-9)
     assert np.abs(p[:, :2] - final[:, :2]).max() < 2e-6  # the TUM file's 6 decimals

@@ -216,6 +216,40 @@ def test_loop_closer_pulls_a_drifting_trajectory_back():
     assert after[-20:].mean() < 0.3 * before[-20:].mean()
 
 
+def test_loop_matches_in_a_worker_process_give_the_same_corrections():
+    """Keyframes started and finished apart (the mapper node's worker: process) with the matches in
+    a worker process: the same loops and corrections, bit for bit, as add() in this process."""
+    pytest.importorskip("pf_slam_tools")
+    from pf_slam_nodes.nodes.worker import ProcessBackend
+
+    truth = _loop_drive()[:160]
+    inc = relative_pose(truth[:-1], truth[1:])
+    inc[:, 0] *= 1.01
+    drifted = [truth[0]]
+    for d in inc:
+        drifted.append(compose(drifted[-1], d))
+    cfg = LoopClosureConfig(enabled=True, min_loop_travel_m=10.0, submap_m=5.0)
+    here = LoopCloser(cfg)
+    apart = LoopCloser(cfg, lambda cls, args: ProcessBackend(cls, args, name="loop matches"))
+    waited = 0
+    try:
+        for k, (t, p) in enumerate(zip(truth, drifted)):
+            r, a = _ray_room(t)
+            ends = np.stack([np.minimum(r, 20.0) * np.cos(a), np.minimum(r, 20.0) * np.sin(a)], 1)
+            pts, poly = ends[np.isfinite(r)], scan_polygon(np.zeros(2), ends)
+            here.add(float(k), p, pts, poly)
+            if apart.observe(p):
+                apart.start_keyframe(float(k), p, pts, poly)
+                waited += apart.waiting
+                apart.finish_keyframe()
+    finally:
+        apart.close()
+    assert waited == apart.attempts == here.attempts > 0 and len(here.loops) >= 1
+    assert [(e.ref, e.cur) for e in apart.loops] == [(e.ref, e.cur) for e in here.loops]
+    keys = np.arange(len(truth), dtype=float)
+    assert np.array_equal(apart.corrections(keys), here.corrections(keys))
+
+
 def test_a_wider_search_needs_more_inliers():
     """Look-elsewhere: the best of many wrong poses fits better, so the inlier share a match
     needs grows with the search volume; up to the reference volume it is ``min_inliers``."""

@@ -1,7 +1,8 @@
 """The odometry scale estimate (core/odometry.py OdomScaleEstimator, correlation.odom_scale): it
 converges to a known wheel-scale error on synthetic measurements; a scan pair (core/scanpair.py)
 measures the true travel where the street has along-track structure and nothing where it has
-none; the correction stage learns the scale of odometry that under-reports the travel in a room."""
+none; the correction stage learns the scale of odometry that under-reports the travel in a room,
+the same with the pairs measured in a worker process."""
 
 import math
 
@@ -11,9 +12,10 @@ from conftest import box_ranges
 
 from pf_slam_nodes.core import config as cfg
 from pf_slam_nodes.core.odometry import OdomScaleEstimator
-from pf_slam_nodes.core.scanpair import pair_scan, pair_travel
+from pf_slam_nodes.core.scanpair import ScalePairs, pair_scan, pair_travel
 from pf_slam_nodes.core.slam import ParticleFilterSlam
 from pf_slam_nodes.core.stages import scaled_increment
+from pf_slam_nodes.nodes.worker import ProcessBackend
 
 
 def _closed_loop(true_scale, steps=600, observed=1.0, noise_m=0.02, outliers=0.05, seed=0, **kw):
@@ -92,7 +94,7 @@ def test_correction_stage_learns_the_scale_of_odometry_that_under_reports():
     too small). The estimate reaches 1.02 (the room's end walls show the travel; the trajectory
     is as good as without it: the matches correct every step here)."""
 
-    def drive(on: bool):
+    def drive(on: bool, worker: bool = False):
         corr = cfg.CorrelationConfig(
             search_x_m=0.0,
             search_y_m=0.0,
@@ -120,6 +122,8 @@ def test_correction_stage_learns_the_scale_of_odometry_that_under_reports():
             corr,
             cfg.ResampleConfig(),
         )
+        if worker:  # the scan pairs measured in a worker process (the correlator node's default)
+            slam.corrector.pairs = ProcessBackend(ScalePairs, (0.1, corr), name="test worker")
         truth = []
         for lap in range(10):
             xs = np.arange(-4.0, 4.01, 0.25)
@@ -130,10 +134,14 @@ def test_correction_stage_learns_the_scale_of_odometry_that_under_reports():
         for x, ox in zip(truth, odom_x):
             r, a = _room_scan(np.array([x, 0.0, 0.0]))
             out.append(slam.process_odometry_scan(0.0, np.array([ox, 0.0, 0.0]), r, a, 0.0, 20.0)[0] - x)
-        return slam, float(np.sqrt(np.mean(np.square(out))))
+        slam.corrector.close()
+        return slam, float(np.sqrt(np.mean(np.square(out)))), out
 
-    on, err_on = drive(True)
-    off, err_off = drive(False)
+    on, err_on, out_on = drive(True)
+    off, err_off, _ = drive(False)
+    in_worker, _, out_worker = drive(True, worker=True)
+    assert out_worker == out_on  # bit for bit: the measurements are taken at the same corrections
+    assert in_worker.corrector.odom_scale.scale == on.corrector.odom_scale.scale
     est = on.corrector.odom_scale
     print(f"scale {est.scale:.4f} over {est.steps} steps; x error rms {err_on:.3f} m (without: {err_off:.3f} m)")
     assert est.steps > 40 and on.corrector.scale_measurements == est.steps

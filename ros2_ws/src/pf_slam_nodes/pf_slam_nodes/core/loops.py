@@ -37,6 +37,7 @@ import cv2
 import numpy as np
 
 from .config import LoopClosureConfig
+from .deferred import Offload, inline
 from .geometry import compose, relative_pose, wrap_angle
 from .posegraph import edge_errors, optimize
 from .scan import transform_points, transform_points_batch
@@ -174,6 +175,17 @@ def match_submaps(
     return poses[bi], float(score[bi]), float(inl[bi]), float(con[bi]), rival
 
 
+class SubmapMatcher:
+    """:func:`match_submaps` with its configuration, as an object a worker process can hold
+    (core/deferred.py)."""
+
+    def __init__(self, cfg: LoopClosureConfig) -> None:
+        self.cfg = cfg
+
+    def match(self, query: np.ndarray, ref: np.ndarray, ref_polys: list, guess: np.ndarray, window_m: float):
+        return match_submaps(query, ref, ref_polys, guess, window_m, self.cfg)
+
+
 def _refine(poses: np.ndarray, pts: np.ndarray, field: _Field, cfg: LoopClosureConfig, iterations: int = 15):
     """Gauss-Newton on the squared distance (clamped at ``3 sigma``) from every pose; the score,
     inlier and contradiction shares at the results."""
@@ -206,10 +218,17 @@ def scan_polygon(origin: np.ndarray, ends: np.ndarray, stride: int = 1) -> np.nd
 
 class LoopCloser:
     """Keyframes, loop matches and the pose graph. Feed it every corrected scan (:meth:`add`);
-    read the corrections of any pose (:meth:`corrections`)."""
+    read the corrections of any pose (:meth:`corrections`).
 
-    def __init__(self, cfg: LoopClosureConfig) -> None:
+    A keyframe's loop match can run beside the caller (``offload``: a worker process,
+    core/deferred.py): :meth:`start_keyframe` adds the keyframe and sends its match,
+    :meth:`finish_keyframe` takes the answer and closes the loop. Nothing of the graph is read or
+    changed in between, so the result is the same as :meth:`add_keyframe`'s, which does both."""
+
+    def __init__(self, cfg: LoopClosureConfig, offload: Offload = inline) -> None:
         self.cfg = cfg
+        self.matcher = offload(SubmapMatcher, (cfg,))
+        self._open: tuple[int, int, float] | None = None  # (cur, ref, window) of the match sent
         self.stamps: list[float] = []  # keyframes: stamp (the caller's time key) ...
         self.raw: list[np.ndarray] = []  # ... the filter's pose (raw frame) ...
         self.travel: list[float] = []  # ... travel so far (m) ...
@@ -253,6 +272,35 @@ class LoopCloser:
 
     def add_keyframe(self, stamp: float, pose: np.ndarray, points: np.ndarray, polygon: np.ndarray) -> bool:
         """The keyframe :meth:`observe` asked for; True when it closed a loop."""
+        self.start_keyframe(stamp, pose, points, polygon)
+        return self.finish_keyframe()
+
+    @property
+    def waiting(self) -> bool:
+        """A loop match was sent and :meth:`finish_keyframe` has not taken it yet."""
+        return self._open is not None
+
+    def ready(self) -> bool:
+        """:meth:`finish_keyframe` would not wait (no match open, or its answer is here)."""
+        return self._open is None or self.matcher.ready()
+
+    def close(self) -> None:
+        """Stop the home of the loop matches (a worker process)."""
+        self.matcher.close()
+
+    def finish_keyframe(self) -> bool:
+        """The answer to the keyframe's loop match, if one was sent (waits for it); True when it
+        closed a loop."""
+        if self._open is None:
+            return False
+        k, j, window = self._open
+        self._open = None
+        return self._close_loop(k, j, window, self.matcher.collect())
+
+    def start_keyframe(self, stamp: float, pose: np.ndarray, points: np.ndarray, polygon: np.ndarray) -> None:
+        """The keyframe :meth:`observe` asked for, and its loop match sent if one is due (then
+        :meth:`finish_keyframe` before anything else)."""
+        assert self._open is None, "finish_keyframe() first"
         cfg = self.cfg
         pose = np.asarray(pose, dtype=np.float64).reshape(3)
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
@@ -266,9 +314,8 @@ class LoopCloser:
         nxt = pose if k == 0 else compose(self.opt[k - 1], relative_pose(self.raw[k - 1], pose))
         self.opt = np.vstack([self.opt, nxt[None]])
         self.mapped = np.vstack([self.mapped, self.map_frame[None]])
-        if self._travel - self._last_attempt < cfg.loop_every_m:
-            return False
-        return self._try_loop(k)
+        if self._travel - self._last_attempt >= cfg.loop_every_m:
+            self._start_loop(k)
 
     # ------------------------------------------------------------------ corrections
     def _kf_corrections(self) -> np.ndarray:
@@ -320,24 +367,33 @@ class LoopCloser:
         polys = [transform_points(self.polys[m], rel[m - lo]) for m in range(lo, hi)]
         return _voxel(np.concatenate(pts), self.cfg.resolution_m), polys
 
-    def _try_loop(self, k: int) -> bool:
+    def _start_loop(self, k: int) -> None:
+        """Keyframe ``k``'s surroundings against those of the nearest earlier keyframe at least
+        ``min_loop_travel_m`` back, if one is near enough: the match is sent."""
         cfg = self.cfg
         t = np.asarray(self.travel)
         back = np.nonzero(t <= t[k] - cfg.min_loop_travel_m)[0]
         if back.size == 0:
-            return False
+            return
         window = min(cfg.window_min_m + cfg.window_per_m * (t[k] - self._last_loop), cfg.window_max_m)
         d = np.hypot(self.opt[back, 0] - self.opt[k, 0], self.opt[back, 1] - self.opt[k, 1])
         if d.min() > window + 0.5 * cfg.submap_m:
-            return False
+            return
         self._last_attempt = t[k]
         j = int(back[np.argmin(d)])
         ref, polys = self._submap(j, t[j] - cfg.submap_m, min(t[j] + cfg.submap_m, t[k] - cfg.min_loop_travel_m))
         query, _ = self._submap(k, t[k] - cfg.submap_m, t[k])
         self.attempts += 1
-        m = match_submaps(query, ref, polys, relative_pose(self.opt[j], self.opt[k]), window, cfg)
+        self.matcher.submit("match", query, ref, polys, relative_pose(self.opt[j], self.opt[k]), window)
+        self._open = (k, j, window)
+
+    def _close_loop(self, k: int, j: int, window: float, m) -> bool:
+        """The loop match of keyframe ``k`` against ``j`` (:func:`match_submaps`' answer): kept,
+        it is a loop edge; True when the solution changed."""
+        cfg = self.cfg
         if m is None:
             return False
+        t = self.travel
         pose, score, inl, con, rival = m
         kept = inl >= min_inliers(cfg, window) and con <= cfg.max_contradictions and score - rival >= cfg.min_margin
         self.log.append((k, j, pose, score, inl, con, rival, kept))

@@ -23,6 +23,7 @@ ROS-free, no file I/O, vectorised over the candidate offsets.
 
 from __future__ import annotations
 
+import collections
 import math
 from dataclasses import dataclass
 
@@ -41,6 +42,8 @@ CROSS_HALF_M = 0.3
 REACH_MARGIN_M = 10.0
 #: fewer points in either scan: no pair
 MIN_POINTS = 30
+#: scans kept for pairing, at most
+MAX_PAIR_SCANS = 64
 ORIGIN = np.zeros(3)  # relative_pose(p, ORIGIN) is the inverse of p
 
 
@@ -120,3 +123,35 @@ def pair_travel(
         return None
     offset = fine_a[k] + 0.5 * (c0 - c2) / second * FINE_STEP_M
     return dist, dist + float(offset)
+
+
+class ScalePairs:
+    """The recent scans kept for pairing, and the pairing: :meth:`measure` pairs a scan with the
+    newest kept one at least ``odom_scale_baseline_m`` of odometry back, then keeps it and forgets
+    those no longer needed. Its state is its own (nothing of the filter's), so that it can live in
+    a worker process (core/deferred.py)."""
+
+    def __init__(self, resolution: float, cfg: CorrelationConfig) -> None:
+        self.resolution = float(resolution)
+        self.cfg = cfg
+        self.kept: collections.deque[PairScan] = collections.deque()
+
+    def measure(self, odom: np.ndarray, points: np.ndarray) -> tuple[float, float] | None:
+        """A scan (its odometry pose (3,), its points in the vehicle frame, all of them): the
+        ``(odometry travel, measured travel)`` of its pair (:func:`pair_travel`), or None."""
+        cfg = self.cfg
+        scan = pair_scan(odom, points, self.resolution, cfg)
+        if scan is None:
+            return None
+        got = None
+        far = [math.hypot(*(p.odom[:2] - scan.odom[:2])) >= cfg.odom_scale_baseline_m for p in self.kept]
+        if any(far):
+            last = len(far) - 1 - far[::-1].index(True)  # the newest kept scan far enough back
+            got = pair_travel(self.kept[last], scan, cfg.odom_scale_max, cfg.odom_scale_min_curvature, cfg.range_max_m)
+            while len(far) > 1 and far[1]:  # the next one is far enough for the next scan too
+                self.kept.popleft()
+                far.pop(0)
+        self.kept.append(scan)
+        while len(self.kept) > MAX_PAIR_SCANS:
+            self.kept.popleft()
+        return got

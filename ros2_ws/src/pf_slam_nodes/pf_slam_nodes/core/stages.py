@@ -16,7 +16,6 @@ process it runs in.
 
 from __future__ import annotations
 
-import collections
 import dataclasses
 import math
 import time
@@ -34,6 +33,7 @@ from .config import (
     ResampleConfig,
 )
 from .correlation import GridLikelihoodField, correlate
+from .deferred import Offload, inline
 from .filter import n_eff, resample, update_log_weights
 from .geometry import compose, relative_pose
 from .grid import LogOddsGrid, grid_geometry, grow_array, growth_plan
@@ -43,12 +43,11 @@ from .motion import sample_odometry_motion
 from .mount import mounted_scan
 from .odometry import OdomScaleEstimator
 from .scan import planar_scan, scan_to_points, shadow_beams, sparse_scan_range, transform_points, valid_beams
-from .scanpair import PairScan, pair_scan, pair_travel
+from .scanpair import ScalePairs
 
 MOTION_STREAM = 1
 RESAMPLE_STREAM = 2
 INIT_STREAM = 3  # localization: the initialisation's candidates
-MAX_PAIR_SCANS = 64  # correlation.odom_scale: scans kept for pairing, at most
 
 
 @dataclasses.dataclass
@@ -171,6 +170,7 @@ class CorrectionStage:
         resample_cfg: ResampleConfig,
         laser_cfg: LaserConfig | None = None,
         loc_cfg: LocalizationConfig | None = None,
+        offload: Offload = inline,
     ) -> None:
         self.loc_cfg = loc_cfg or LocalizationConfig()
         self.localizer: Localizer | None = None  # set_map: localization on a fixed map
@@ -197,7 +197,10 @@ class CorrectionStage:
             OdomScaleEstimator(c.odom_scale_window_m, c.odom_scale_ramp_m, c.odom_scale_max) if c.odom_scale else None
         )
         self._odom_prev: np.ndarray | None = None  # odometry pose of the last corrected set
-        self._pairs: collections.deque[PairScan] = collections.deque()  # recent scans to pair (odom_scale)
+        # odom_scale: the scan pairs measured beside the correction (offload: here or a worker
+        # process); a scan's measurement is taken at the next correction, before its scale is read
+        self.pairs = offload(ScalePairs, (float(grid_cfg.resolution_m), corr_cfg)) if c.odom_scale else None
+        self._pair_pending = False
         self.scale_measurements = 0
         self._move: np.ndarray | None = None  # a closed loop's frame change, for the next set
         self._exact = False  # the next patch is a whole re-rendered grid: the field takes its geometry
@@ -348,11 +351,13 @@ class CorrectionStage:
         scale = 1.0
         if self.odom_scale is not None and odom_pose is not None and not initialising:
             odom = np.asarray(odom_pose, dtype=np.float64).reshape(3)
+            self.collect_scale()
             if self._odom_prev is not None:
                 scale = self.odom_scale.scale
                 particles = scaled_increment(particles, relative_pose(self._odom_prev, odom), scale)
             self._odom_prev = odom
-            self._measure_scale(odom, pts)
+            self.pairs.submit("measure", odom, pts)  # all of the scan's points, in the vehicle frame
+            self._pair_pending = True
         if self.known is not None and pts.shape[0] > 0:
             seen = self._observed(pts, particles[int(np.argmax(log_w))])
             pts = pts[seen]
@@ -385,30 +390,21 @@ class CorrectionStage:
         self.clock.add("resample", t0)
         return Correction(particles, log_w, pose, resampled, bool(matched), scale)
 
-    def _measure_scale(self, odom: np.ndarray, pts: np.ndarray) -> None:
-        """correlation.odom_scale: pair this scan (its points in the vehicle frame, all of them)
-        with the newest kept scan at least ``odom_scale_baseline_m`` of odometry back and add the
-        travel the pair measures to the estimate (core/scanpair.py); then keep this scan and
-        forget those no longer needed."""
-        cfg = self.corr_cfg
-        scan = pair_scan(odom, pts, float(self.grid_cfg.resolution_m), cfg)
-        if scan is None:
+    def collect_scale(self) -> None:
+        """correlation.odom_scale: the last scan's pair measurement into the estimate (the next
+        correction does this before it reads the scale; call it at the end of a run too)."""
+        if not self._pair_pending:
             return
-        far = [math.hypot(*(p.odom[:2] - odom[:2])) >= cfg.odom_scale_baseline_m for p in self._pairs]
-        if any(far):
-            last = len(far) - 1 - far[::-1].index(True)  # the newest kept scan far enough back
-            got = pair_travel(
-                self._pairs[last], scan, cfg.odom_scale_max, cfg.odom_scale_min_curvature, cfg.range_max_m
-            )
-            if got is not None:
-                self.odom_scale.add(*got)
-                self.scale_measurements += 1
-            while len(far) > 1 and far[1]:  # the next one is far enough for the next scan too
-                self._pairs.popleft()
-                far.pop(0)
-        self._pairs.append(scan)
-        while len(self._pairs) > MAX_PAIR_SCANS:
-            self._pairs.popleft()
+        self._pair_pending = False
+        got = self.pairs.collect()
+        if got is not None:
+            self.odom_scale.add(*got)
+            self.scale_measurements += 1
+
+    def close(self) -> None:
+        """Stop the home of the work handed off (a worker process)."""
+        if self.pairs is not None:
+            self.pairs.close()
 
 
 def scan_in_base(
@@ -471,6 +467,7 @@ class MappingStage:
         grid_cfg: GridConfig,
         laser_cfg: LaserConfig | None = None,
         loop_cfg: LoopClosureConfig | None = None,
+        offload: Offload = inline,
     ) -> None:
         self.filter_cfg = filter_cfg
         self.grid_cfg = grid_cfg
@@ -480,7 +477,8 @@ class MappingStage:
         self.pose: np.ndarray | None = None
         self._occ: np.ndarray | None = None  # int8 occupancy of the whole grid, kept current
         self.clock = StageClock()  # "map": ray tracing + log-odds + the patch; "loops": the back end
-        self.loops = LoopCloser(self.loop_cfg) if self.loop_cfg.enabled else None
+        self.loops = LoopCloser(self.loop_cfg, offload) if self.loop_cfg.enabled else None
+        self._open: MapPatch | None = None  # start_integrate's patch, while its loop match runs
         self._scans: list[tuple] = []  # loops: (key, raw pose, scan) of every integrated scan
         self.frame = np.zeros(3)  # loops: the filter's frame in the raw frame
         self.frames: list[tuple[float, np.ndarray]] = [(-math.inf, np.zeros(3))]  # (from key, frame)
@@ -504,6 +502,38 @@ class MappingStage:
         """Integrate a scan at a corrected pose; returns the patch of the cells it touched
         (``extrinsic``: this scan's mount (12,) on a moving mount, else the configured one;
         ``key``: the scan's time, increasing, for the loop closure's corrections)."""
+        self.start_integrate(pose, ranges, angles, range_min, range_max, extrinsic, key)
+        return self.finish_integrate()
+
+    @property
+    def waiting(self) -> bool:
+        """:meth:`start_integrate` sent a loop match that :meth:`finish_integrate` has not taken."""
+        return self._open is not None
+
+    def answered(self) -> bool:
+        """:meth:`finish_integrate` would not wait for the loop match."""
+        return self.loops is None or self.loops.ready()
+
+    def close(self) -> None:
+        """Stop the home of the loop matches (a worker process)."""
+        if self.loops is not None:
+            self.loops.close()
+
+    def start_integrate(
+        self,
+        pose: np.ndarray,
+        ranges: np.ndarray,
+        angles: np.ndarray,
+        range_min: float = 0.0,
+        range_max: float = math.inf,
+        extrinsic: np.ndarray | None = None,
+        key: float = 0.0,
+    ) -> None:
+        """:meth:`integrate` up to the loop match it sends (if its keyframe is due one); then
+        :meth:`finish_integrate` (before anything else of this stage) returns the patch. What
+        runs between the two may not touch this stage: the result does not depend on when the
+        match's answer came."""
+        assert self._open is None, "finish_integrate() first"
         t0 = time.perf_counter()
         if self._pending_frame is not None:  # the set this pose came from followed the last re-rendering
             self.frame, self._pending_frame = self._pending_frame, None
@@ -511,17 +541,29 @@ class MappingStage:
         planar = scan_in_base(
             ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset, range_min, range_max, extrinsic
         )
-        patch = self._integrate(pose, planar, range_min, range_max)
+        self._open = self._integrate(pose, planar, range_min, range_max)
         self.clock.add("map", t0)
         if self.loops is not None:
             t0 = time.perf_counter()
-            patch = self._close_loops(float(key), pose, planar, range_min, range_max, patch)
+            self._keyframe(float(key), pose, planar, range_min, range_max)
             self.clock.add("loops", t0)
+
+    def finish_integrate(self) -> MapPatch:
+        """The patch of the scan :meth:`start_integrate` took (waits for its loop match): the
+        cells it touched, or the whole re-rendered map when the loop it closed moved the map."""
+        patch, self._open = self._open, None
+        assert patch is not None, "start_integrate() first"
+        if self.loops is None:
+            return patch
+        t0 = time.perf_counter()
+        if self.loops.finish_keyframe() and self.loops.map_shift() > self.loop_cfg.rebuild_m:
+            patch = self._rebuilt()
+        self.clock.add("loops", t0)
         return patch
 
-    def _close_loops(self, key: float, pose: np.ndarray, planar: tuple, rmin: float, rmax: float, patch: MapPatch):
-        """Keep the scan (as the planar sensor saw it, for a re-rendering), hand a keyframe to the
-        loop closure, and re-render the map when its solution moved it (the patch then says so)."""
+    def _keyframe(self, key: float, pose: np.ndarray, planar: tuple, rmin: float, rmax: float) -> None:
+        """Keep the scan (as the planar sensor saw it, for a re-rendering) and hand it to the
+        loop closure if it is a keyframe (which may send a loop match)."""
         raw = compose(self.frame, np.asarray(pose, dtype=np.float64).reshape(3))
         r, a, offset = planar
         a32 = a.astype(np.float32)
@@ -529,17 +571,18 @@ class MappingStage:
         kept_a = last if last is not None and np.array_equal(last, a32) else a32  # share a repeated beam layout
         self._scans.append((key, raw, (r.astype(np.float32), kept_a, offset, rmin, rmax)))
         if not self.loops.observe(raw):  # not a keyframe: nothing more to do
-            return patch
+            return
         reach = min(self.loop_cfg.max_range_m, rmax)
         pts = transform_points(scan_to_points(r, a, max(rmin, 1e-6), reach), offset)
         ok = ~np.isnan(r)
         ends = np.where(np.isfinite(r[ok]) & (r[ok] <= reach), r[ok], reach)
         ends = transform_points(np.stack([ends * np.cos(a[ok]), ends * np.sin(a[ok])], axis=1), offset)
         poly = scan_polygon(offset[:2], ends, max(1, ends.shape[0] // 180))
-        if not self.loops.add_keyframe(key, raw, pts, poly):
-            return patch
-        if self.loops.map_shift() <= self.loop_cfg.rebuild_m:
-            return patch
+        self.loops.start_keyframe(key, raw, pts, poly)
+
+    def _rebuilt(self) -> MapPatch:
+        """A closed loop moved the keyframes: the map re-rendered from the optimised poses, whole,
+        with the frame change the filter's set must follow."""
         corr = self._render()
         move = compose(corr, self.frame)  # the filter's frame -> the optimised one
         self._pending_frame = relative_pose(corr, np.zeros(3))  # optimised -> raw

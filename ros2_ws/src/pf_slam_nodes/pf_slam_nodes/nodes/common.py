@@ -85,8 +85,9 @@ PARAM_DOCS: dict[str, str] = {
     "(pf-slam run sets it when the mapper closes loops)",
     "trajectory_timeout_s": "texture: with await_trajectory, finish without it this long after the end of the bag (s)",
     "worker_nice": "texture: nice increment of the worker thread / process (the SLAM nodes keep priority)",
-    "worker": "texture: where pairs are textured: 'process' (a worker process, no GIL shared with the SLAM "
-    "nodes) or 'thread' (the node's worker thread); same texture",
+    "worker": "texture, correlator, mapper: where the node's side work runs (texture: the pairs; correlator: "
+    "correlation.odom_scale's scan pairs; mapper: the loop matches): 'process' (a worker process, no GIL "
+    "shared with the SLAM nodes) or 'thread' (in the node's process); same results",
     "pose_buffer_size": "texture: poses kept for interpolation at image stamps",
     "left_topic": "texture: left image topic",
     "right_topic": "texture: right image topic",

@@ -71,7 +71,13 @@ NODE_PLAIN: dict[str, dict[str, Any]] = {
         "mount_wait_s": 5.0,
         "sensor_qos": "reliable",
     },
-    "correlator": {"map_frame": "map", "expected_observers": 0, "mode": "slam", "mount_from_tf": False},
+    "correlator": {
+        "map_frame": "map",
+        "expected_observers": 0,
+        "mode": "slam",
+        "mount_from_tf": False,
+        "worker": "process",
+    },
     "mapper": {
         **_FRAMES,
         "occupied_thresh": 0.65,
@@ -81,6 +87,7 @@ NODE_PLAIN: dict[str, dict[str, Any]] = {
         "mode": "slam",
         "map_file": "",
         "mount_from_tf": False,
+        "worker": "process",
     },
     "texture": {
         "map_frame": "map",

@@ -18,7 +18,12 @@ loops.enabled -- the loop closure (core/loops.py) runs on the integrated scans. 
 moves the map re-renders it from the optimised poses: the correlator gets a frame-change marker
 (pf_slam/grid, resolution -1, the transform as its origin) and then the whole new map, and the
 filter goes on in that frame. After the last scan the map is re-rendered once more if the final
-solution moved it, and the trajectory (and /path) go out in the final frame.
+solution moved it, and the trajectory (and /path) go out in the final frame. With ``worker:
+process`` (default) a keyframe's loop match runs in a worker process the node owns
+(nodes/worker.py) while the graph goes on with the scans that pass through: the scan's patch
+(and the frame change) goes out once the match has answered (a 1 ms timer looks while it runs),
+and the correlator waits for it before its next correction, as it waits for any patch. So the
+trajectory is the same as with ``worker: thread`` (the match in the node, waited for).
 
 mode: localization -- the map is map_file (a map_server .yaml), loaded at start-up and published
 latched on /map as loaded (at once, for the correlator, then like a built map); without map_file
@@ -49,6 +54,7 @@ from tf2_msgs.msg import TFMessage
 from pf_slam_interfaces.msg import ParticleArray, ReplayStatus
 from pf_slam_interfaces.srv import SaveMap
 
+from ..core.deferred import inline
 from ..core.geometry import compose, matrix_to_quat, relative_pose
 from ..core.stages import MappingStage
 from ..io.mapfile import read_map, trinary
@@ -63,6 +69,7 @@ from .common import (
     scan_fields,
     status_publisher,
 )
+from .worker import ProcessOrInline
 
 
 class PoseLog:
@@ -103,12 +110,20 @@ class PoseLog:
 class Mapper(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("mapper", **kwargs)
+        self.worker = param(self, "worker", "process")
+        if self.worker not in ("process", "thread"):
+            raise ValueError(f"node mapper: parameter 'worker' must be 'process' or 'thread', got {self.worker!r}")
+        self.worker_error = ""
         self.stage = MappingStage(
             declare_config(self, "filter"),
             declare_config(self, "grid"),
             declare_config(self, "laser"),
             declare_config(self, "loops"),
+            offload=self._offload if self.worker == "process" else inline,
         )
+        self._open: tuple[int, int] | None = None  # (scan index, stamp) of the scan whose loop match runs
+        self._poll = self.create_timer(0.001, self._finish_open)  # while one runs: is its answer here?
+        self._poll.cancel()
         self.map_frame = param(self, "map_frame", "map")
         self.odom_frame = param(self, "odom_frame", "odom")
         self.base_frame = param(self, "base_frame", "base_link")
@@ -181,8 +196,22 @@ class Mapper(Node):
             self.mount_ready = True
             self._drain()
 
+    def _offload(self, cls: type, args: tuple) -> ProcessOrInline:
+        """worker: process -- the loop matches run in a worker process beside the graph."""
+        return ProcessOrInline(cls, args, self._worker_died, name="mapper worker")
+
+    def _worker_died(self, text: str) -> None:
+        self.worker_error = f"{text}; its work goes on in the node (the loop match it owed is lost)"
+        self.get_logger().error(self.worker_error)
+
+    def destroy_node(self) -> None:
+        self.stage.close()
+        super().destroy_node()
+
     def _status(self) -> dict:
         out = {"faults": {"scans_lost_mapper": self.scans.lost, "map_beyond_bound": self._beyond_bound()}}
+        if self.worker_error:
+            out["worker_error"] = self.worker_error
         lc = self.stage.loops
         if lc is not None:
             out["loops"] = {
@@ -192,6 +221,7 @@ class Mapper(Node):
                 "rejected": lc.rejected,
                 "dropped": lc.dropped,
                 "map_renders": self.stage.rebuilds,
+                "matched_in": lc.matcher.kind,  # "process" (worker: process) or "inline" (in the node)
             }
         return out
 
@@ -293,11 +323,14 @@ class Mapper(Node):
         self._maybe_finish()
 
     def _drain(self) -> None:
+        if self._open is not None and self.stage.answered():
+            self._finish_open()
+            return  # (which drains)
         while self.updates and self.mount_ready:
             pa = self.updates[0]
             stamp = convert.stamp_to_ns(pa.header.stamp)  # the scan's
-            if pa.update and not self.scans.has(self.integrated, stamp):
-                return
+            if pa.update and (self._open is not None or not self.scans.has(self.integrated, stamp)):
+                return  # the previous scan's loop match is still running, or this scan is not here
             self.updates.popleft()
             pose = np.asarray(pa.pose, dtype=np.float64)
             if pa.update:
@@ -336,13 +369,32 @@ class Mapper(Node):
         self._maybe_finish()
 
     def _integrate(self, pa: ParticleArray, pose: np.ndarray, scan, stamp: int) -> None:
-        """SLAM: the scan into the grid at the pose; its patch to the correlator."""
-        patch = self.stage.integrate(pose, *scan_fields(scan), extrinsic=mount_of(pa), key=stamp / 1e9)
+        """SLAM: the scan into the grid at the pose; its patch to the correlator once its loop
+        match (if any, in the worker process) has answered: the correlator waits for that patch
+        before its next correction, the pass-through scans go on meanwhile."""
+        self.stage.start_integrate(pose, *scan_fields(scan), extrinsic=mount_of(pa), key=stamp / 1e9)
+        if self.stage.waiting and not self.stage.answered():
+            self._open = (pa.scan_index, stamp)
+            self._poll.reset()
+            return
+        self._finish_integrate(pa.scan_index, stamp)
+
+    def _finish_open(self) -> None:
+        """The running loop match answered: finish its scan, then go on with what waited."""
+        if self._open is None or not self.stage.answered():
+            return
+        self._poll.cancel()
+        (index, stamp), self._open = self._open, None
+        self._finish_integrate(index, stamp)
+        self._drain()
+
+    def _finish_integrate(self, index: int, stamp: int) -> None:
+        patch = self.stage.finish_integrate()
         if patch.transform is not None:  # a closed loop re-rendered the map: the filter's frame follows
             self.pub_grid.publish(convert.frame_change_msg(patch.transform, stamp, self.map_frame))
             t = patch.transform
             self.get_logger().info(
-                f"scan {pa.scan_index}: loop closed ({len(self.stage.loops.loops)} so far), map re-rendered "
+                f"scan {index}: loop closed ({len(self.stage.loops.loops)} so far), map re-rendered "
                 f"from the optimised poses; the frame moves by x {t[0]:.3f} y {t[1]:.3f} m, "
                 f"yaw {np.degrees(t[2]):.2f} deg"
             )
@@ -350,7 +402,7 @@ class Mapper(Node):
         if g.scans_beyond_bound and not self._warned_bound:
             self._warned_bound = True
             self.get_logger().warn(
-                f"scan {pa.scan_index} reaches beyond what grid.max_cells ({g.cfg.max_cells}) lets the "
+                f"scan {index} reaches beyond what grid.max_cells ({g.cfg.max_cells}) lets the "
                 f"map grow to ({g.height} x {g.width} cells): those cells are not mapped (counted: "
                 "faults map_beyond_bound)"
             )
@@ -373,6 +425,8 @@ class Mapper(Node):
         pub.publish(TFMessage(transforms=[tf]))
 
     def _maybe_finish(self) -> None:
+        if self._open is not None:  # the last scans wait for a loop match
+            return
         if self.total is not None and self.last_index == self.total - 1:
             if not self.localize and self.stage.finish():
                 self.get_logger().info("end of the run: map re-rendered from the final loop-closure solution")

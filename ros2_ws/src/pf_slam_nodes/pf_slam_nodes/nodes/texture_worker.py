@@ -1,30 +1,17 @@
 """The texture node's per-pair work, in a thread of the node's process or in a worker process
-(the texture node's ``worker`` parameter). No rclpy here: a spawned worker process imports only
-this module, numpy, OpenCV and core/texture.
+(the texture node's ``worker`` parameter; nodes/worker.py). No rclpy here: a spawned worker
+process imports only this module, numpy, OpenCV and core/texture.
 
 :class:`TextureEngine` owns the texturer (:class:`StereoTexturer` / :class:`DepthTexturer`) and the
-accumulated :class:`TextureMap`; the node calls its methods through a backend:
-
-* :class:`ThreadBackend`: direct calls (under a lock) in the node's worker thread; beside the
-  SLAM nodes' executor thread every numpy / OpenCV call waits for the GIL again.
-* :class:`ProcessBackend`: the same calls, as ``(method, args)`` messages over a pipe to one worker
-  process (multiprocessing ``spawn``: no fork of a process with DDS threads), started when the
-  node is built so that its imports overlap the start of the run. One request at a time, answered
-  in order: the texture is the same bit for bit as in a thread. The process ignores SIGINT (the
-  node shuts it down), ends when its pipe closes (the node's process is gone), and its death is a
-  :class:`WorkerDied` on the next call.
+accumulated :class:`TextureMap`; the node calls its methods through a backend: in a thread,
+direct calls under a lock (beside the SLAM nodes' executor thread every numpy / OpenCV call waits
+for the GIL again); in a process, one request at a time, answered in order: the texture is the
+same bit for bit.
 """
 
 from __future__ import annotations
 
-import multiprocessing as mp
-import os
-import signal
-import sys
-import threading
 import time
-import types
-from multiprocessing.connection import wait
 
 import numpy as np
 
@@ -38,10 +25,10 @@ from ..core.texture import (
     TextureConfig,
     TextureMap,
 )
+from .worker import ProcessBackend, ThreadBackend, WorkerDied
+from .worker import make_backend as worker_backend
 
-
-class WorkerDied(RuntimeError):
-    """The worker process is gone (its exit status in the message)."""
+__all__ = ["TextureEngine", "WorkerDied", "make_backend"]
 
 
 class TextureEngine:
@@ -126,137 +113,9 @@ class TextureEngine:
         }
 
 
-class ThreadBackend:
-    """The engine in the caller's process."""
-
-    kind = "thread"
-
-    def __init__(self, cfg: TextureConfig, nice: int = 0) -> None:
-        self._engine = TextureEngine(cfg)
-        self._lock = threading.Lock()
-
-    def call(self, method: str, *args):
-        with self._lock:
-            return getattr(self._engine, method)(*args)
-
-    def close(self, timeout_s: float = 5.0) -> None:
-        pass
-
-
-def _serve(conn, cfg: TextureConfig, nice: int) -> None:
-    """The worker process: answer ``(method, args)`` requests with ``(True, result)`` or
-    ``(False, error text)`` until ``None`` or the pipe closes."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the node, which stops us
-    if nice > 0:
-        try:
-            os.setpriority(os.PRIO_PROCESS, 0, min(os.getpriority(os.PRIO_PROCESS, 0) + nice, 19))
-        except OSError:
-            pass
-    engine = TextureEngine(cfg)
-    while True:
-        try:
-            req = conn.recv()
-        except (EOFError, OSError):
-            return
-        if req is None:
-            return
-        method, args = req
-        try:
-            out = (True, getattr(engine, method)(*args))
-        except Exception as e:  # noqa: BLE001  (a bad pair must not end the worker)
-            out = (False, f"{type(e).__name__}: {e}")
-        try:
-            conn.send(out)
-        except (BrokenPipeError, OSError):
-            return
-
-
-class ProcessBackend:
-    """The engine in a worker process (see the module docstring)."""
-
-    kind = "process"
-
-    def __init__(self, cfg: TextureConfig, nice: int = 0) -> None:
-        ctx = mp.get_context("spawn")
-        self._conn, child = ctx.Pipe()
-        self.process = ctx.Process(target=_serve, args=(child, cfg, nice), name="texture_worker", daemon=True)
-        # the worker needs this module only: it does not re-import the caller's __main__ (a
-        # script without a __main__ guard would run again there; the CLI would import rclpy)
-        main = sys.modules.get("__main__")
-        sys.modules["__main__"] = types.ModuleType("__main__")
-        try:
-            self.process.start()
-        finally:
-            if main is not None:
-                sys.modules["__main__"] = main
-        child.close()
-        self._lock = threading.Lock()
-        self._dead: str | None = None
-
-    def _died(self) -> WorkerDied:
-        if self._dead is None:
-            self.process.join(timeout=1.0)
-            code = self.process.exitcode
-            for _ in range(10):  # another thread may be reaping it right now
-                if code is not None:
-                    break
-                time.sleep(0.05)
-                code = self.process.exitcode
-            how = f"killed by signal {-code}" if code is not None and code < 0 else f"exit code {code}"
-            self._dead = f"texture worker process (pid {self.process.pid}) died ({how})"
-        return WorkerDied(self._dead)
-
-    def call(self, method: str, *args):
-        """Run ``method(*args)`` in the worker; raises :class:`WorkerDied` once it is gone, a
-        ``RuntimeError`` with the worker's error for a failed call."""
-        with self._lock:
-            if self._dead is not None:
-                raise WorkerDied(self._dead)
-            try:
-                self._conn.send((method, args))
-                while True:  # wait for the answer or the worker's end, whichever comes first
-                    ready = wait([self._conn, self.process.sentinel], timeout=5.0)
-                    if self._conn in ready:
-                        ok, out = self._conn.recv()
-                        break
-                    if self.process.sentinel in ready:
-                        raise self._died()
-            except (EOFError, OSError):  # the pipe broke under the worker (WorkerDied passes through)
-                raise self._died() from None
-        if not ok:
-            raise RuntimeError(out)
-        return out
-
-    def close(self, timeout_s: float = 5.0) -> None:
-        """Stop the worker: ask, then terminate, then kill. A call still waiting on a worker that
-        does not answer (the lock not free within ``timeout_s``) ends with :class:`WorkerDied`
-        once the worker is terminated."""
-        got = self._lock.acquire(timeout=timeout_s)
-        try:
-            if got and self.process.is_alive():
-                try:
-                    self._conn.send(None)
-                except (BrokenPipeError, OSError):
-                    pass
-                self.process.join(timeout_s)
-            if self.process.is_alive():
-                self.process.terminate()
-                self.process.join(1.0)
-            if self.process.is_alive():
-                self.process.kill()
-                self.process.join(1.0)
-            if self._dead is None:
-                self._dead = "texture worker process stopped"
-        finally:
-            if got:
-                self._conn.close()
-                self._lock.release()
-
-
 def make_backend(kind: str, cfg: TextureConfig, nice: int = 0) -> ThreadBackend | ProcessBackend:
-    """``'thread'`` or ``'process'`` (the texture node's ``worker`` parameter)."""
-    if kind == "process":
-        return ProcessBackend(cfg, nice)
-    if kind == "thread":
-        return ThreadBackend(cfg, nice)
-    raise ValueError(f"texture worker must be 'process' or 'thread', got {kind!r}")
+    """The texture engine in a ``'process'`` or a ``'thread'`` (the texture node's ``worker``
+    parameter; nodes/worker.py)."""
+    if kind not in ("process", "thread"):
+        raise ValueError(f"texture worker must be 'process' or 'thread', got {kind!r}")
+    return worker_backend(kind, TextureEngine, (cfg,), nice, "texture worker")
