@@ -392,7 +392,7 @@ class CorrectionStage:
 
     def collect_scale(self) -> None:
         """correlation.odom_scale: the last scan's pair measurement into the estimate (the next
-        correction does this before it reads the scale; call it at the end of a run too)."""
+        correction does this before it reads the scale)."""
         if not self._pair_pending:
             return
         self._pair_pending = False
@@ -508,7 +508,7 @@ class MappingStage:
     @property
     def waiting(self) -> bool:
         """:meth:`start_integrate` sent a loop match that :meth:`finish_integrate` has not taken."""
-        return self._open is not None
+        return self._open is not None and self.loops is not None and self.loops.waiting
 
     def answered(self) -> bool:
         """:meth:`finish_integrate` would not wait for the loop match."""

@@ -21,7 +21,7 @@ filter goes on in that frame. After the last scan the map is re-rendered once mo
 solution moved it, and the trajectory (and /path) go out in the final frame. With ``worker:
 process`` (default) a keyframe's loop match runs in a worker process the node owns
 (nodes/worker.py) while the graph goes on with the scans that pass through: the scan's patch
-(and the frame change) goes out once the match has answered (a 1 ms timer looks while it runs),
+(and the frame change) goes out once the match has answered (a 0.2 ms timer looks while it runs),
 and the correlator waits for it before its next correction, as it waits for any patch. So the
 trajectory is the same as with ``worker: thread`` (the match in the node, waited for).
 
@@ -122,7 +122,7 @@ class Mapper(Node):
             offload=self._offload if self.worker == "process" else inline,
         )
         self._open: tuple[int, int] | None = None  # (scan index, stamp) of the scan whose loop match runs
-        self._poll = self.create_timer(0.001, self._finish_open)  # while one runs: is its answer here?
+        self._poll = self.create_timer(0.0002, self._finish_open)  # while one runs: is its answer here?
         self._poll.cancel()
         self.map_frame = param(self, "map_frame", "map")
         self.odom_frame = param(self, "odom_frame", "odom")
