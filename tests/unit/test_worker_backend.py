@@ -31,6 +31,25 @@ def test_calls_answer_in_order_and_errors_come_back():
         b.call("ready")
 
 
+def test_calls_after_a_worker_died_mid_call_say_so():
+    """A call whose worker is killed while it waits ends in WorkerDied, and so does every later
+    call (not a complaint about the answer the dead worker still owed)."""
+    b = ProcessBackend(_Counter, (0,), name="counter")
+    try:
+        assert b.call("add", 1) == 1
+        os.kill(b.process.pid, signal.SIGSTOP)  # it takes the request but never answers
+        t = threading.Timer(0.3, lambda: os.kill(b.process.pid, signal.SIGKILL))
+        t.start()
+        with pytest.raises(WorkerDied, match="counter process"):
+            b.call("add", 1)
+        t.join()
+        for _ in range(2):
+            with pytest.raises(WorkerDied, match="killed by signal 9"):
+                b.call("add", 1)
+    finally:
+        b.close()
+
+
 def test_close_ends_a_stuck_worker_and_the_call_waiting_on_it():
     b = ProcessBackend(TextureEngine, (TextureConfig(),), name="texture worker")
     assert b.call("ready") is True

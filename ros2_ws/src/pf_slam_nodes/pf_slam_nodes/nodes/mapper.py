@@ -114,12 +114,14 @@ class Mapper(Node):
         if self.worker not in ("process", "thread"):
             raise ValueError(f"node mapper: parameter 'worker' must be 'process' or 'thread', got {self.worker!r}")
         self.worker_error = ""
+        self.mode = param(self, "mode", "slam")
         self.stage = MappingStage(
             declare_config(self, "filter"),
             declare_config(self, "grid"),
             declare_config(self, "laser"),
             declare_config(self, "loops"),
-            offload=self._offload if self.worker == "process" else inline,
+            # a worker process only where loops are matched (not on a fixed map)
+            offload=self._offload if self.worker == "process" and self.mode == "slam" else inline,
         )
         self._open: tuple[int, int] | None = None  # (scan index, stamp) of the scan whose loop match runs
         self._poll = self.create_timer(0.0002, self._finish_open)  # while one runs: is its answer here?
@@ -130,7 +132,6 @@ class Mapper(Node):
         self.thresholds = (param(self, "occupied_thresh", 0.65), param(self, "free_thresh", 0.25))
         trinary(np.zeros((1, 1)), *self.thresholds)  # bad thresholds fail at start-up
         period = param(self, "map_publish_period_s", 1.0)
-        self.mode = param(self, "mode", "slam")
         map_file = param(self, "map_file", "")
         self.fixed_map: OccupancyGrid | None = None
         if self.mode not in ("slam", "localization"):

@@ -163,8 +163,8 @@ class ProcessBackend:
         """``method(*args)`` in the worker, waiting for its answer (nothing may be waiting to be
         collected)."""
         with self._lock:
-            assert self._waiting == 0, "call() with answers not collected"
-            self._send(method, args)
+            assert self._dead is not None or self._waiting == 0, "call() with answers not collected"
+            self._send(method, args)  # once the worker is gone: WorkerDied
             return self._receive()
 
     def close(self, timeout_s: float = 5.0) -> None:
