@@ -505,11 +505,6 @@ class MappingStage:
         self.start_integrate(pose, ranges, angles, range_min, range_max, extrinsic, key)
         return self.finish_integrate()
 
-    @property
-    def waiting(self) -> bool:
-        """:meth:`start_integrate` sent a loop match that :meth:`finish_integrate` has not taken."""
-        return self._open is not None and self.loops is not None and self.loops.waiting
-
     def answered(self) -> bool:
         """:meth:`finish_integrate` would not wait for the loop match."""
         return self.loops is None or self.loops.ready()

@@ -18,6 +18,7 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
+from ..core.deferred import inline
 from ..runner.memory import keep_freed_memory
 from .declared import CONFIG_SECTIONS
 
@@ -168,6 +169,41 @@ def param(node: Node, name: str, default: T) -> T:
     if default is not None and type(v) is not type(default):
         raise ValueError(f"node {node.get_name()}: parameter '{name}' must be {type(default).__name__}, got {v!r}")
     return v
+
+
+def worker_param(node: Node) -> str:
+    """The node's ``worker`` parameter, checked: 'process' or 'thread'."""
+    kind = param(node, "worker", "process")
+    if kind not in ("process", "thread"):
+        raise ValueError(f"node {node.get_name()}: parameter 'worker' must be 'process' or 'thread', got {kind!r}")
+    return kind
+
+
+class SideWork:
+    """A SLAM node's side work (core/deferred.py), as its ``worker`` parameter says: ``process``,
+    each object it hands work to lives in a worker process named after the node
+    (nodes/worker.py ``ProcessOrInline``); ``thread``, in the node. A worker that dies is one
+    error of the node (:attr:`error`, ``lost`` says what it owed; then ``on_error()``), and the
+    work goes on in the node."""
+
+    def __init__(self, node: Node, lost: str, on_error: Callable[[], None] | None = None) -> None:
+        self.node, self.lost, self.on_error = node, lost, on_error
+        self.kind = worker_param(node)
+        self.error = ""
+
+    def offload(self, cls: type, args: tuple):
+        """The stage's :data:`~..core.deferred.Offload`."""
+        if self.kind != "process":
+            return inline(cls, args)
+        from .worker import ProcessOrInline
+
+        return ProcessOrInline(cls, args, self._died, name=f"{self.node.get_name()} worker")
+
+    def _died(self, text: str) -> None:
+        self.error = f"{text}; its work goes on in the node ({self.lost})"
+        self.node.get_logger().error(self.error)
+        if self.on_error is not None:
+            self.on_error()
 
 
 def announce_when_matched(

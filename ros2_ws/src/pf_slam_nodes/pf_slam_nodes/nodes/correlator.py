@@ -42,12 +42,12 @@ from sensor_msgs.msg import LaserScan
 
 from pf_slam_interfaces.msg import ParticleArray
 
-from ..core.deferred import inline
 from ..core.geometry import compose, quat_to_yaw
 from ..core.stages import CorrectionStage, MapPatch
 from ..ros import cdr, convert, qos, topics
 from .common import (
     ScanQueue,
+    SideWork,
     announce_when_matched,
     declare_config,
     mount_of,
@@ -56,17 +56,15 @@ from .common import (
     scan_fields,
     status_publisher,
 )
-from .worker import ProcessOrInline
 
 
 class Correlator(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("correlator", **kwargs)
         filter_cfg = declare_config(self, "filter")
-        self.worker = param(self, "worker", "process")
-        if self.worker not in ("process", "thread"):
-            raise ValueError(f"node correlator: parameter 'worker' must be 'process' or 'thread', got {self.worker!r}")
-        self.worker_error = ""
+        # worker: process -- the scan pairs of correlation.odom_scale are measured in a worker
+        # process beside the correlation (the same numbers: core/deferred.py)
+        self.side = SideWork(self, "the measurement it owed is lost", lambda: self._publish_status())
         self.stage = CorrectionStage(
             filter_cfg,
             declare_config(self, "grid"),
@@ -74,7 +72,7 @@ class Correlator(Node):
             declare_config(self, "resample"),
             declare_config(self, "laser"),
             declare_config(self, "localization"),
-            offload=self._offload if self.worker == "process" else inline,
+            offload=self.side.offload,
         )
         self.mode = param(self, "mode", "slam")
         if self.mode not in ("slam", "localization"):
@@ -106,24 +104,14 @@ class Correlator(Node):
 
             receive_mount(self, self._on_mount)
 
-    def _offload(self, cls: type, args: tuple) -> ProcessOrInline:
-        """worker: process -- the scan pairs of correlation.odom_scale are measured in a worker
-        process beside the correlation (the same numbers: core/deferred.py)."""
-        return ProcessOrInline(cls, args, self._worker_died, name="correlator worker")
-
-    def _worker_died(self, text: str) -> None:
-        self.worker_error = f"{text}; its work goes on in the node (the measurement it owed is lost)"
-        self.get_logger().error(self.worker_error)
-        self._publish_status()
-
     def destroy_node(self) -> None:
         self.stage.close()
         super().destroy_node()
 
     def _status(self) -> dict:
         out = {"faults": {"scans_lost_correlator": self.scans.lost}}
-        if self.worker_error:
-            out["worker_error"] = self.worker_error
+        if self.side.error:
+            out["worker_error"] = self.side.error
         if self.mode == "localization":
             out["localization"] = self.stage.localization_status(self.particles_now)
         return out

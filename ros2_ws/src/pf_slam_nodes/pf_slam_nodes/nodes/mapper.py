@@ -61,6 +61,7 @@ from ..io.mapfile import read_map, trinary
 from ..ros import cdr, convert, qos, topics
 from .common import (
     ScanQueue,
+    SideWork,
     announce_when_matched,
     declare_config,
     mount_of,
@@ -69,7 +70,6 @@ from .common import (
     scan_fields,
     status_publisher,
 )
-from .worker import ProcessOrInline
 
 
 class PoseLog:
@@ -110,10 +110,7 @@ class PoseLog:
 class Mapper(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("mapper", **kwargs)
-        self.worker = param(self, "worker", "process")
-        if self.worker not in ("process", "thread"):
-            raise ValueError(f"node mapper: parameter 'worker' must be 'process' or 'thread', got {self.worker!r}")
-        self.worker_error = ""
+        self.side = SideWork(self, "the loop match it owed is lost")  # worker: process -- the loop matches
         self.mode = param(self, "mode", "slam")
         self.stage = MappingStage(
             declare_config(self, "filter"),
@@ -121,7 +118,7 @@ class Mapper(Node):
             declare_config(self, "laser"),
             declare_config(self, "loops"),
             # a worker process only where loops are matched (not on a fixed map)
-            offload=self._offload if self.worker == "process" and self.mode == "slam" else inline,
+            offload=self.side.offload if self.mode == "slam" else inline,
         )
         self._open: tuple[int, int] | None = None  # (scan index, stamp) of the scan whose loop match runs
         self._poll = self.create_timer(0.0002, self._finish_open)  # while one runs: is its answer here?
@@ -197,22 +194,14 @@ class Mapper(Node):
             self.mount_ready = True
             self._drain()
 
-    def _offload(self, cls: type, args: tuple) -> ProcessOrInline:
-        """worker: process -- the loop matches run in a worker process beside the graph."""
-        return ProcessOrInline(cls, args, self._worker_died, name="mapper worker")
-
-    def _worker_died(self, text: str) -> None:
-        self.worker_error = f"{text}; its work goes on in the node (the loop match it owed is lost)"
-        self.get_logger().error(self.worker_error)
-
     def destroy_node(self) -> None:
         self.stage.close()
         super().destroy_node()
 
     def _status(self) -> dict:
         out = {"faults": {"scans_lost_mapper": self.scans.lost, "map_beyond_bound": self._beyond_bound()}}
-        if self.worker_error:
-            out["worker_error"] = self.worker_error
+        if self.side.error:
+            out["worker_error"] = self.side.error
         lc = self.stage.loops
         if lc is not None:
             out["loops"] = {
@@ -374,7 +363,7 @@ class Mapper(Node):
         match (if any, in the worker process) has answered: the correlator waits for that patch
         before its next correction, the pass-through scans go on meanwhile."""
         self.stage.start_integrate(pose, *scan_fields(scan), extrinsic=mount_of(pa), key=stamp / 1e9)
-        if self.stage.waiting and not self.stage.answered():
+        if not self.stage.answered():
             self._open = (pa.scan_index, stamp)
             self._poll.reset()
             return

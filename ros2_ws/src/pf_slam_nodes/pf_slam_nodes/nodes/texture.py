@@ -105,7 +105,7 @@ from ..core.texture import (
 )
 from ..io.calib import read_stereo_rig
 from ..ros import cdr, convert, qos, topics
-from .common import announce_when_matched, declare_config, param, run_node
+from .common import announce_when_matched, declare_config, param, run_node, worker_param
 from .texture_worker import WorkerDied, make_backend
 
 TEXTURE = "texture"
@@ -190,11 +190,7 @@ class TextureNode(Node):
         depth_info = param(self, "depth_info_topic", "/kinect/depth/camera_info")
         self.pair_tol_ns = int(param(self, "depth_pair_tol_s", 0.05) * 1e9)
         self.floor_height_m = param(self, "floor_height_m", 0.0)
-        self.worker = param(self, "worker", "process")
-        if self.worker not in ("process", "thread"):
-            raise ValueError(
-                f"node {self.get_name()}: parameter 'worker' must be 'process' or 'thread', got {self.worker!r}"
-            )
+        self.worker = worker_param(self)
         if not period > 0 or self.queue_depth < 1 or self.max_pending_pairs < 1 or pose_buffer < 2:
             raise ValueError(
                 f"node {self.get_name()}: publish_period_s must be > 0, queue_depth "

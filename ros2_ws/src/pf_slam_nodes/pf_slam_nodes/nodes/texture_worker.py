@@ -116,6 +116,4 @@ class TextureEngine:
 def make_backend(kind: str, cfg: TextureConfig, nice: int = 0) -> ThreadBackend | ProcessBackend:
     """The texture engine in a ``'process'`` or a ``'thread'`` (the texture node's ``worker``
     parameter; nodes/worker.py)."""
-    if kind not in ("process", "thread"):
-        raise ValueError(f"texture worker must be 'process' or 'thread', got {kind!r}")
     return worker_backend(kind, TextureEngine, (cfg,), nice, "texture worker")
