@@ -107,7 +107,7 @@ def test_match_recovers_an_offset_pose_within_centimetres():
     query = transform_inverse(_room_points(rng), true)
     m = match_submaps(query, ref, ROOM_POLY, np.zeros(3), 1.5, cfg)
     assert m is not None
-    pose, score, inliers, contradictions, rival = m
+    pose, score, inliers, contradictions, rival, _ = m
     assert np.hypot(*(pose[:2] - true[:2])) < 0.02
     assert abs(wrap_angle(pose[2] - true[2])) < math.radians(0.3)
     assert inliers > 0.9 and contradictions < 0.02
@@ -131,9 +131,59 @@ def test_match_in_a_featureless_corridor_is_ambiguous():
     )
     cfg = LoopClosureConfig(enabled=True)
     poly = [np.array([[-20.0, -1.15], [20.0, -1.15], [20.0, 1.15], [-20.0, 1.15]])]
-    pose, score, inliers, _, rival = match_submaps(query, ref, poly, np.zeros(3), 3.0, cfg)
+    pose, score, inliers, _, rival, _ = match_submaps(query, ref, poly, np.zeros(3), 3.0, cfg)
     assert inliers > 0.9
     assert score - rival < cfg.min_margin
+
+
+def _street(rng: np.random.Generator, half_m: float) -> np.ndarray:
+    """Two facades 4 m either side of a street along x (``half_m`` either way), and a pillar on
+    the curb."""
+    x = np.arange(-half_m, half_m, 0.05)
+    pts = [np.stack([x, np.full_like(x, -4.0)], 1), np.stack([x, np.full_like(x, 4.0)], 1)]
+    a = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    pts.append(np.stack([2.0 + 0.3 * np.cos(a), -2.5 + 0.3 * np.sin(a)], 1))
+    p = np.concatenate(pts)
+    return p + rng.normal(scale=0.005, size=p.shape)
+
+
+def test_a_match_that_slides_along_a_street_holds_loosely_along_it_only():
+    """A street whose facades fit at every shift along it, and one pillar: from a search narrower
+    than ``ambiguity_m`` no rival shows, so the match is kept; but its score falls little along
+    the street (the pillar's share), so the loop edge holds along the street loosely and across
+    it and in yaw as tightly as any. A room's match falls steeply every way: no loosening."""
+    rng = np.random.default_rng(4)
+    cfg = LoopClosureConfig(enabled=True, ambiguity_m=2.0)
+    poly = [np.array([[-30.0, -3.95], [30.0, -3.95], [30.0, 3.95], [-30.0, 3.95]])]
+    true = np.array([0.3, 0.1, 0.02])
+    query = transform_inverse(_street(rng, 15.0)[::2], true)
+    pose, score, inliers, _, rival, (u, fall) = match_submaps(query, _street(rng, 30.0), poly, np.zeros(3), 1.0, cfg)
+    assert abs(pose[1] - true[1]) < 0.02 and abs(pose[0] - true[0]) < 0.2 and inliers > 0.9
+    assert score - rival >= cfg.min_margin  # kept: nothing 2 m away was searched
+    assert abs(u[0]) > 0.99  # the weakest direction is along the street
+    assert 0.0 <= fall < cfg.min_margin / 3
+    info = loops.loop_information(cfg, pose, (u, fall))
+    along, across = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+    assert along @ info @ along < 0.15 * cfg.loop_sigma_xy_m**-2
+    assert across @ info @ across == pytest.approx(cfg.loop_sigma_xy_m**-2, rel=1e-3)
+    assert info[2, 2] == cfg.loop_sigma_rad**-2
+    # the room: the score falls by more than min_margin half ambiguity_m away in every direction
+    room = _room_points(rng)
+    m = match_submaps(transform_inverse(_room_points(rng), true), room, ROOM_POLY, np.zeros(3), 1.0, cfg)
+    assert m[5][1] >= cfg.min_margin
+    assert np.allclose(
+        loops.loop_information(cfg, m[0], m[5]), np.diag([cfg.loop_sigma_xy_m**-2] * 2 + [cfg.loop_sigma_rad**-2])
+    )
+
+
+def test_loop_information_is_in_the_edge_frame():
+    """The weak direction is found in the reference's frame; the edge's error is in ``z``'s
+    frame (core/posegraph.py): a match turned by 90 degrees is loose along its own y axis."""
+    cfg = LoopClosureConfig(enabled=True)
+    info = loops.loop_information(cfg, np.array([0.0, 0.0, math.pi / 2]), (np.array([1.0, 0.0]), 0.0))
+    assert info[1, 1] == pytest.approx((cfg.loop_sigma_xy_m * loops.MAX_SLIDE_FACTOR) ** -2)
+    assert info[0, 0] == pytest.approx(cfg.loop_sigma_xy_m**-2)
+    assert abs(info[0, 1]) < 1e-6 * info[0, 0]
 
 
 def test_query_points_far_beyond_the_reference_are_neutral():
@@ -144,7 +194,7 @@ def test_query_points_far_beyond_the_reference_are_neutral():
     ref = _room_points(rng)
     far = np.stack([np.linspace(60.0, 80.0, 300), np.full(300, 60.0)], 1)
     query = np.concatenate([_room_points(rng), far])
-    pose, _, inliers, contradictions, _ = match_submaps(query, ref, ROOM_POLY, np.zeros(3), 2.0, cfg)
+    pose, _, inliers, contradictions, _, _ = match_submaps(query, ref, ROOM_POLY, np.zeros(3), 2.0, cfg)
     assert np.hypot(*pose[:2]) < 0.02 and abs(pose[2]) < math.radians(0.3)
     assert contradictions < 0.02 and inliers > 0.7
 
@@ -155,7 +205,7 @@ def test_a_wall_where_the_reference_saw_free_space_contradicts_the_match():
     ref = _room_points(rng)
     extra = np.stack([np.full(200, 6.0), np.linspace(1.0, 7.0, 200)], 1)  # a wall across the room
     query = np.concatenate([_room_points(rng), extra])
-    _, _, _, contradictions, _ = match_submaps(query, ref, ROOM_POLY, np.zeros(3), 1.0, cfg)
+    _, _, _, contradictions, _, _ = match_submaps(query, ref, ROOM_POLY, np.zeros(3), 1.0, cfg)
     assert contradictions > cfg.max_contradictions
 
 
@@ -272,7 +322,7 @@ def test_a_loop_closer_refuses_a_weak_match_from_a_wide_search(monkeypatch, wind
 
     def match(query, ref, polys, guess, window_m, cfg):
         calls.append(window_m)
-        return np.asarray(guess, dtype=float), 0.54, 0.54, 0.0, -1.0
+        return np.asarray(guess, dtype=float), 0.54, 0.54, 0.0, -1.0, (np.array([1.0, 0.0]), 1.0)
 
     monkeypatch.setattr(loops, "match_submaps", match)
     cfg = LoopClosureConfig(

@@ -717,8 +717,8 @@ class LoopClosureConfig(_ConfigBase):
     max_contradictions : float
         ... at most this share lies in the free space the reference's scans saw ...
     min_margin : float
-        ... and its score (inliers minus contradictions) beats every candidate ``ambiguity_m``
-        or more away (a corridor of identical doors has several) by at least this.
+        ... and its score beats every candidate ``ambiguity_m`` or more away by this; a kept match
+        whose score falls less than this ``ambiguity_m / 2`` along some direction holds loosely there.
     ambiguity_m : float
         Distance (m) beyond which a candidate is a rival match.
     look_elsewhere, look_elsewhere_m, look_elsewhere_rad : float

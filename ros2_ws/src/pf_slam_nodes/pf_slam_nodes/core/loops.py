@@ -18,7 +18,10 @@ candidates are refined on a fine field (Gauss-Newton). A query point scores +1 w
 (a contradiction: a wall where the earlier visit saw through), 0 where the reference saw
 nothing; the best candidate needs ``min_inliers`` (more in a wide search: :func:`min_inliers`),
 at most ``max_contradictions``, and must beat every candidate ``ambiguity_m`` or more away by
-``min_margin`` (a corridor of identical doors has several). The solution drops loop edges that
+``min_margin`` (a corridor of identical doors has several). A match can still slide: along a
+street or a corridor whose walls fit at every shift the score falls slowly from the best, with
+no rival far enough to refuse it; the loop edge then holds across and in yaw as tightly as any,
+and along that direction loosely (:func:`loop_information`). The solution drops loop edges that
 disagree with the rest (``max_chi2``).
 
 Frames: the poses given to :meth:`LoopCloser.add` are the filter's in one fixed frame, the *raw*
@@ -42,6 +45,11 @@ from .geometry import compose, relative_pose, wrap_angle
 from .posegraph import edge_errors, optimize
 from .scan import transform_points, transform_points_batch
 
+#: a match's weakest direction is trusted as much as the others when its score falls by
+#: ``min_margin`` or more within ``ambiguity_m / 2`` along it; its std grows as the fall shrinks,
+#: up to this factor (a flat ridge: the edge then barely holds along it)
+MAX_SLIDE_FACTOR = 30.0
+
 #: a new loop edge that the current solution already satisfies within this chi-square (about one
 #: sigma) is added without solving the graph again (the solve waits for one that does not, or for
 #: the next read of the corrections): revisits that agree with the filter cost nothing
@@ -55,6 +63,7 @@ class LoopEdge:
     z: np.ndarray  # (3,) pose of cur in ref's frame
     score: float
     rival: float
+    info: np.ndarray  # (3, 3) information matrix, in z's frame (core/posegraph.py)
 
 
 def min_inliers(cfg: LoopClosureConfig, window_m: float) -> float:
@@ -123,13 +132,16 @@ class _Field:
 
 def match_submaps(
     query: np.ndarray, ref: np.ndarray, ref_polys: list, guess: np.ndarray, window_m: float, cfg: LoopClosureConfig
-) -> tuple[np.ndarray, float, float, float, float] | None:
+) -> tuple | None:
     """The pose of the query's frame in the reference's frame within ``window_m`` (and
-    ``cfg.window_rad``) of ``guess``: ``(pose (3,), score, inliers, contradictions, rival)``, or
-    None when either point set has fewer than 30 points. ``query``, ``ref``: ``(M, 2)`` points in
-    their own frames; ``ref_polys``: the reference scans' free-space polygons in its frame.
-    ``score`` = inliers - contradictions (shares of the query's points); ``rival``: the best
-    score of a candidate ``ambiguity_m`` or more away (-1 if none)."""
+    ``cfg.window_rad``) of ``guess``: ``(pose (3,), score, inliers, contradictions, rival,
+    slide)``, or None when either point set has fewer than 30 points. ``query``, ``ref``:
+    ``(M, 2)`` points in their own frames; ``ref_polys``: the reference scans' free-space
+    polygons in its frame. ``score`` = inliers - contradictions (shares of the query's points);
+    ``rival``: the best score of a candidate ``ambiguity_m`` or more away (-1 if none);
+    ``slide``: ``(u, fall)``, the unit direction (reference frame) along which the fit is least
+    curved at the pose, and how much the score falls ``ambiguity_m / 2`` along it either way
+    (the smaller fall of the two)."""
     if query.shape[0] < 30 or ref.shape[0] < 30:
         return None
     # the fields cover the reference (and a cell or two): a query point beyond them scores 0
@@ -172,7 +184,24 @@ def match_submaps(
     bi = int(np.argmax(score))
     far = np.hypot(poses[:, 0] - poses[bi, 0], poses[:, 1] - poses[bi, 1]) >= cfg.ambiguity_m
     rival = float(score[far].max()) if far.any() else -1.0
-    return poses[bi], float(score[bi]), float(inl[bi]), float(con[bi]), rival
+    u = _weakest(poses[bi], query, fine, cfg)
+    shifted = poses[bi] + np.array([[u[0], u[1], 0.0], [-u[0], -u[1], 0.0]]) * (0.5 * cfg.ambiguity_m)
+    fall = float(score[bi]) - float(_scores(shifted, query, fine, cfg)[0].max())
+    return poses[bi], float(score[bi]), float(inl[bi]), float(con[bi]), rival, (u, fall)
+
+
+def loop_information(cfg: LoopClosureConfig, z: np.ndarray, slide) -> np.ndarray:
+    """A loop edge's information matrix (3x3, in ``z``'s frame): ``loop_sigma_xy_m`` and
+    ``loop_sigma_rad``, and along the match's weakest direction (``slide``:
+    :func:`match_submaps`) the std times ``min_margin / fall`` (at least 1, at most
+    :data:`MAX_SLIDE_FACTOR`)."""
+    info = np.diag([cfg.loop_sigma_xy_m**-2] * 2 + [cfg.loop_sigma_rad**-2])
+    u, fall = slide
+    factor = min(max(cfg.min_margin / max(fall, 1e-9), 1.0), MAX_SLIDE_FACTOR)
+    c, s = math.cos(z[2]), math.sin(z[2])
+    uz = np.array([c * u[0] + s * u[1], -s * u[0] + c * u[1]])  # R_z^T u
+    info[:2, :2] += (factor**-2 - 1.0) * cfg.loop_sigma_xy_m**-2 * np.outer(uz, uz)
+    return info
 
 
 class SubmapMatcher:
@@ -204,10 +233,24 @@ def _refine(poses: np.ndarray, pts: np.ndarray, field: _Field, cfg: LoopClosureC
         if np.abs(step).max() < 1e-4:
             break
     x[:, 2] = wrap_angle(x[:, 2])
-    w = transform_points_batch(pts, x)
+    return (x, *_scores(x, pts, field, cfg))
+
+
+def _scores(poses: np.ndarray, pts: np.ndarray, field: _Field, cfg: LoopClosureConfig):
+    """The score, inlier and contradiction shares of the points at each pose ``(N, 3)``."""
+    w = transform_points_batch(pts, poses)
     inl = (field.lookup(field.dist, w, np.inf) <= 2 * cfg.sigma_m).mean(axis=1)
     con = field.lookup(field.free, w, 0.0).mean(axis=1)
-    return x, inl - con, inl, con
+    return inl - con, inl, con
+
+
+def _weakest(pose: np.ndarray, pts: np.ndarray, field: _Field, cfg: LoopClosureConfig) -> np.ndarray:
+    """The unit translation (reference frame) along which the points' fit at ``pose`` is least
+    curved: the smaller eigenvector of the distance gradients' 2x2 Gauss-Newton matrix."""
+    dist = np.minimum(field.dist, np.float32(3 * cfg.sigma_m))
+    _, gx, gy = field.bilinear(dist, transform_points_batch(pts, pose[None]))
+    g = np.stack([gx[0], gy[0]], axis=1).astype(np.float64)
+    return np.linalg.eigh(g.T @ g)[1][:, 0]
 
 
 def scan_polygon(origin: np.ndarray, ends: np.ndarray, stride: int = 1) -> np.ndarray:
@@ -394,17 +437,17 @@ class LoopCloser:
         if m is None:
             return False
         t = self.travel
-        pose, score, inl, con, rival = m
+        pose, score, inl, con, rival, slide = m
         kept = inl >= min_inliers(cfg, window) and con <= cfg.max_contradictions and score - rival >= cfg.min_margin
         self.log.append((k, j, pose, score, inl, con, rival, kept))
         if not kept:
             self.rejected += 1
             return False
-        self.loops.append(LoopEdge(j, k, pose, score, rival))
+        info = loop_information(cfg, pose, slide)
+        self.loops.append(LoopEdge(j, k, pose, score, rival, info))
         self._last_loop = t[k]
         e = edge_errors(self.opt, np.array([j]), np.array([k]), pose[None])[0][0]
-        info = np.array([cfg.loop_sigma_xy_m, cfg.loop_sigma_xy_m, cfg.loop_sigma_rad]) ** -2.0
-        if float(e @ (info * e)) <= AGREES_CHI2:
+        if float(e @ info @ e) <= AGREES_CHI2:
             self._unsolved = True
             return False
         self._solve()
@@ -427,14 +470,13 @@ class LoopCloser:
         info_seq[:, 1, 1] = w_along * uy * uy + w_lat * ux * ux
         info_seq[:, 0, 1] = info_seq[:, 1, 0] = (w_along - w_lat) * ux * uy
         info_seq[:, 2, 2] = (cfg.seq_sigma_rad + cfg.seq_sigma_rad_per_m * dist) ** -2
-        info_loop = np.diag([cfg.loop_sigma_xy_m**-2] * 2 + [cfg.loop_sigma_rad**-2])
         x = self.opt
         for _ in range(3):  # drop the loop edges the solution disagrees with, then solve again
             e = self.loops
             i = np.concatenate([np.arange(n - 1), [a.ref for a in e]]).astype(np.int64)
             j = np.concatenate([np.arange(1, n), [a.cur for a in e]]).astype(np.int64)
             z = np.vstack([z_seq, *(a.z[None] for a in e)])
-            info = np.concatenate([info_seq, np.repeat(info_loop[None], len(e), axis=0)])
+            info = np.concatenate([info_seq, np.array([a.info for a in e]).reshape(-1, 3, 3)])
             robust = np.arange(i.size) >= n - 1
             x, chi2 = optimize(self.opt, i, j, z, info, robust, cfg.cauchy)
             bad = chi2[n - 1 :] > cfg.max_chi2
