@@ -132,7 +132,7 @@ class _Field:
 
 def match_submaps(
     query: np.ndarray, ref: np.ndarray, ref_polys: list, guess: np.ndarray, window_m: float, cfg: LoopClosureConfig
-) -> tuple | None:
+) -> tuple[np.ndarray, float, float, float, float, tuple[np.ndarray, float]] | None:
     """The pose of the query's frame in the reference's frame within ``window_m`` (and
     ``cfg.window_rad``) of ``guess``: ``(pose (3,), score, inliers, contradictions, rival,
     slide)``, or None when either point set has fewer than 30 points. ``query``, ``ref``:
@@ -180,11 +180,13 @@ def match_submaps(
             for a, b in peaks[order]
         ]
     )
-    poses, score, inl, con = _refine(cands, query, fine, cfg)
+    # the distance clamped at 3 sigma: what the refinement fits and the weakest direction is read on
+    clamped = np.minimum(fine.dist, np.float32(3 * cfg.sigma_m))
+    poses, score, inl, con = _refine(cands, query, fine, clamped, cfg)
     bi = int(np.argmax(score))
     far = np.hypot(poses[:, 0] - poses[bi, 0], poses[:, 1] - poses[bi, 1]) >= cfg.ambiguity_m
     rival = float(score[far].max()) if far.any() else -1.0
-    u = _weakest(poses[bi], query, fine, cfg)
+    u = _weakest(poses[bi], query, fine, clamped)
     shifted = poses[bi] + np.array([[u[0], u[1], 0.0], [-u[0], -u[1], 0.0]]) * (0.5 * cfg.ambiguity_m)
     fall = float(score[bi]) - float(_scores(shifted, query, fine, cfg)[0].max())
     return poses[bi], float(score[bi]), float(inl[bi]), float(con[bi]), rival, (u, fall)
@@ -215,11 +217,12 @@ class SubmapMatcher:
         return match_submaps(query, ref, ref_polys, guess, window_m, self.cfg)
 
 
-def _refine(poses: np.ndarray, pts: np.ndarray, field: _Field, cfg: LoopClosureConfig, iterations: int = 15):
-    """Gauss-Newton on the squared distance (clamped at ``3 sigma``) from every pose; the score,
-    inlier and contradiction shares at the results."""
+def _refine(
+    poses: np.ndarray, pts: np.ndarray, field: _Field, dist: np.ndarray, cfg: LoopClosureConfig, iterations: int = 15
+):
+    """Gauss-Newton on the squared distance ``dist`` (the field's, clamped at ``3 sigma``) from
+    every pose; the score, inlier and contradiction shares at the results."""
     x = poses.copy()
-    dist = np.minimum(field.dist, np.float32(3 * cfg.sigma_m))
     for _ in range(iterations):
         w = transform_points_batch(pts, x)  # (N, M, 2)
         d, ddx, ddy = field.bilinear(dist, w)
@@ -244,10 +247,10 @@ def _scores(poses: np.ndarray, pts: np.ndarray, field: _Field, cfg: LoopClosureC
     return inl - con, inl, con
 
 
-def _weakest(pose: np.ndarray, pts: np.ndarray, field: _Field, cfg: LoopClosureConfig) -> np.ndarray:
-    """The unit translation (reference frame) along which the points' fit at ``pose`` is least
-    curved: the smaller eigenvector of the distance gradients' 2x2 Gauss-Newton matrix."""
-    dist = np.minimum(field.dist, np.float32(3 * cfg.sigma_m))
+def _weakest(pose: np.ndarray, pts: np.ndarray, field: _Field, dist: np.ndarray) -> np.ndarray:
+    """The unit translation (reference frame) along which the points' fit to ``dist`` (the
+    field's clamped distance, as :func:`_refine` fits it) at ``pose`` is least curved: the
+    smaller eigenvector of the distance gradients' 2x2 Gauss-Newton matrix."""
     _, gx, gy = field.bilinear(dist, transform_points_batch(pts, pose[None]))
     g = np.stack([gx[0], gy[0]], axis=1).astype(np.float64)
     return np.linalg.eigh(g.T @ g)[1][:, 0]
