@@ -206,6 +206,9 @@ def test_car_sample_encoders_fog_tilted_lidar(tmp_path, ros_domain):
     # dead reckoning 0.03 m on this short drive; see README)
     assert ev["ate"]["rmse"] < 0.06, ev["ate"]
     assert s["gyro"]["rest_s"] >= 1.0 and s["gyro"]["bias_rad_s"] != 0.0  # calibrated at standstill
+    # the wheels' scale as the scan pairs measured it (correlation.odom_scale in kaist.yaml)
+    sc = s["odom_scale"]
+    assert sc["pairs"] >= 1 and sc["travel_m"] >= 10.0 and abs(sc["measured"] - 1.0) < 0.03, sc
     occ, _, _ = read_map(tmp_path / "car" / "map.yaml")
     assert (occ >= 65).sum() > 1000  # facades mapped from the tilted scans
     # the texture node ran on the bag's 2 stereo pairs; every pair is accounted for

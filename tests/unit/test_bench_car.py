@@ -10,7 +10,12 @@ from pf_slam_tools.sim.car import simulate_car
 
 def test_true_fog_bias_per_second_and_table(tmp_path):
     (tmp_path / "ground_truth").mkdir()
-    (tmp_path / "ground_truth" / "sim_info.yaml").write_text("fog_yaw_bias_rad_per_sample: 2.0e-07\n")
+    (tmp_path / "ground_truth" / "sim_info.yaml").write_text(
+        "fog_yaw_bias_rad_per_sample: 2.0e-07\nwheel_diameter_true_m: [0.6286, 0.6280]\n"
+    )
+    cal = {"left_wheel_diameter_m": 0.6234, "right_wheel_diameter_m": 0.6228}
+    assert abs(car._true_wheel_scale(tmp_path, cal) - 0.6283 / 0.6231) < 1e-12
+    assert car._true_wheel_scale(tmp_path / "nowhere", cal) is None
     t = 1_700_000_000_000_000_000 + np.arange(100, dtype=np.int64) * 1_000_000  # 1 kHz
     assert abs(car._true_fog_bias_rad_s(tmp_path, t) - 2.0e-4) < 1e-12
     assert car._true_fog_bias_rad_s(tmp_path / "nowhere", t) is None
@@ -25,6 +30,8 @@ def test_true_fog_bias_per_second_and_table(tmp_path):
         dr_rest_bias_ate_m=0.3,
         gyro_bias_rad_s=1.9e-4,
         true_gyro_bias_rad_s=2.0e-4,
+        wheel_scale=1.0081,
+        true_wheel_scale=1.0084,
         map_f1=0.5,
         map_precision=0.7,
         map_recall=0.4,
@@ -36,7 +43,8 @@ def test_true_fog_bias_per_second_and_table(tmp_path):
     )
     line = car.format_table([row]).splitlines()[2]
     assert line.startswith("| 3 | – | 1 | 300 |")
-    assert "| 0.250 | 2.500 | 10.0× | 0.300 | 190 / 200 |" in line
+    assert "| 0.250 | 2.500 | 10.0× | 0.300 | 190 / 200 | +0.81 / +0.84 | 0.500 (0.70 / 0.40) |" in line
+    assert "| – / – |" in car.format_table([dict(row, wheel_scale=None, true_wheel_scale=None)]).splitlines()[2]
     worse = dict(row, ate_m=0.9, rtf=8.0, dropped=2)
     assert car.targets_line([row, worse]) == (
         "2 runs: ATE mean 0.575 m, median 0.575 m, worst 0.900 m; ATE <= 0.35 m and >= 3x below raw dead "

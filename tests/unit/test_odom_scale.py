@@ -148,6 +148,17 @@ def test_correction_stage_learns_the_scale_of_odometry_that_under_reports():
     assert abs(est.scale - 1.02) < 0.004, est.scale
     assert err_on < 0.02 and err_on <= err_off + 0.002, (err_on, err_off)
     assert off.corrector.odom_scale is None
+    # what summary.json and the run's last lines report (correlator status "odom_scale")
+    st = on.corrector.scale_status()
+    assert st["pairs"] == est.steps and st["scale"] == round(est.scale, 5)
+    assert abs(st["measured"] - 1.02) < 0.004 and 0 < st["std_error"] < 0.004
+    assert st["travel_m"] == round(est.travel_m, 1) and st["travel_m"] > 100.0
+    assert off.corrector.scale_status() is None
+    from pf_slam_nodes.runner.outputs import odom_scale_line
+
+    line = odom_scale_line(st)
+    assert f"{st['pairs']} scan pairs" in line and f"{100 * (st['measured'] - 1):+.2f} %" in line, line
+    assert "no scan pair" in odom_scale_line({**st, "pairs": 0})
 
 
 def _street(posts: bool, seed: int = 0) -> np.ndarray:

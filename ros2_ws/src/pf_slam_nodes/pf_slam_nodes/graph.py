@@ -62,7 +62,15 @@ from .runner.mount import (  # noqa: F401
     _up_chain,
     lidar_mount,
 )
-from .runner.outputs import RunResult, _OutDir, _stage_split, _write_outputs, _write_texture, build_summary  # noqa: F401
+from .runner.outputs import (  # noqa: F401
+    RunResult,
+    _OutDir,
+    _stage_split,
+    _write_outputs,
+    _write_texture,
+    build_summary,
+    odom_scale_line,
+)
 from .runner.params import (  # noqa: F401
     CLI_FLAGS,
     _default_particles,
@@ -397,6 +405,8 @@ def run_cli(args: Any, log: Callable[[str], None] = print) -> int:
             f"loop closure: {lc['closed']} loops closed over {lc['keyframes']} keyframes ({lc['rejected']} matches "
             f"refused, {lc['dropped']} dropped by the graph), map re-rendered {lc['map_renders']}x{frames}"
         )
+    if sc := s.get("odom_scale"):
+        log(odom_scale_line(sc))
     if s["scans_dropped"]:
         log(
             f"warning: {s['scans_dropped']} of {s['scans_published']} scans published were dropped: the graph "

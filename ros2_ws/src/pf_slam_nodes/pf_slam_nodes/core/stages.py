@@ -401,6 +401,23 @@ class CorrectionStage:
             self.odom_scale.add(*got)
             self.scale_measurements += 1
 
+    def scale_status(self) -> dict | None:
+        """correlation.odom_scale: what the scan pairs measured of the odometry's translation
+        scale (true / odometry travel; summary.json ``odom_scale``), None when off: ``scale``
+        (applied now), ``measured`` (the ratio before shrinking and clamping), ``std_error``
+        (None before two pairs), ``pairs`` and the odometry ``travel_m`` they cover."""
+        est = self.odom_scale
+        if est is None:
+            return None
+        se = est.std_error
+        return {
+            "scale": round(est.scale, 5),
+            "measured": round(est.raw, 5),
+            "std_error": round(se, 5) if math.isfinite(se) else None,
+            "pairs": self.scale_measurements,
+            "travel_m": round(est.travel_m, 1),
+        }
+
     def close(self) -> None:
         """Stop the home of the work handed off (a worker process)."""
         if self.pairs is not None:

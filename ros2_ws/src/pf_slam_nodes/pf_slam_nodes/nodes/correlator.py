@@ -97,6 +97,7 @@ class Correlator(Node):
         self.create_subscription(ParticleArray, topics.PARTICLES_PREDICTED, self._on_predicted, qos.pipeline())
         self.create_subscription(OccupancyGrid, topics.GRID, self._on_grid, qos.pipeline(10))
         self.particles_now = 0
+        self._scale_pairs = 0  # correlation.odom_scale: the pairs in the last status published
         self._publish_status = status_publisher(self, self._status)
         self.mount_ready = not param(self, "mount_from_tf", False)  # else: wait for the predictor's decision
         if not self.mount_ready:
@@ -114,6 +115,8 @@ class Correlator(Node):
             out["worker_error"] = self.side.error
         if self.mode == "localization":
             out["localization"] = self.stage.localization_status(self.particles_now)
+        if (scale := self.stage.scale_status()) is not None:
+            out["odom_scale"] = scale
         return out
 
     def _on_mount(self, decision: dict) -> None:
@@ -217,6 +220,9 @@ class Correlator(Node):
                 )
                 particles, log_w, pose = res.particles, res.log_weights, res.pose
                 self.corrections_sent += 1
+                if self.stage.scale_measurements != self._scale_pairs:  # each new pair, not only once a second
+                    self._scale_pairs = self.stage.scale_measurements
+                    self._publish_status()
                 self.pub_cloud.publish(self.cloud_cdr.pack(particles, stamp))
                 if self.mode == "localization" and particles.shape[0] != self.particles_now:
                     self.particles_now = particles.shape[0]

@@ -122,6 +122,19 @@ def _write_texture(out: Path, rec: _Recorder, rendered, occ: np.ndarray, res: fl
     return status
 
 
+def odom_scale_line(sc: dict) -> str:
+    """The run's closing line on the odometry's translation scale (summary.json ``odom_scale``,
+    ``correlation.odom_scale``): true / odometry travel as the scan pairs measured it."""
+    if not sc["pairs"]:
+        return "odometry scale: no scan pair measured it (nothing along the way to measure travel by); 1 applied"
+    se = "" if sc["std_error"] is None else f" +- {100 * sc['std_error']:.2f} %"
+    return (
+        f"odometry scale: true / odometry travel {sc['measured']:.4f} ({100 * (sc['measured'] - 1):+.2f} %{se}) "
+        f"from {sc['pairs']} scan pairs over {sc['travel_m']:.0f} m, {sc['scale']:.4f} applied "
+        "(wheel encoders: the calibration's wheel diameters times this)"
+    )
+
+
 def build_summary(plan: RunPlan, dom: RosDomain, done: GraphOutcome, extra: dict) -> dict:
     """summary.json: the run's counts, timings, faults, inputs, profile, mount and domain;
     `extra`: what _write_outputs added."""
@@ -168,6 +181,7 @@ def build_summary(plan: RunPlan, dom: RosDomain, done: GraphOutcome, extra: dict
         "odom_sync": checks["odom_sync"],
         **({"timestamps": checks["timestamps"]} if checks["timestamps"] else {}),
         **({"gyro": gyro} if (gyro := rec.node_status.get("predictor", {}).get("gyro")) else {}),
+        **({"odom_scale": sc} if (sc := rec.node_status.get("correlator", {}).get("odom_scale")) else {}),
         **({"localization": loc} if (loc := rec.node_status.get("correlator", {}).get("localization")) else {}),
         **({"loops": lp} if (lp := rec.node_status.get("mapper", {}).get("loops")) else {}),
         "complete": stopped_by is None,

@@ -219,6 +219,7 @@ def bench(
         dr_ate = _ate(t_dr / 1e9, p_dr, t_gt, p_gt)
         dr_rest_bias_ate = _ate(t_dc / 1e9, p_dc, t_gt, p_gt)
         true_bias = _true_fog_bias_rad_s(data, streams["fog_t"])
+        true_scale = _true_wheel_scale(data, streams["params"])
         go, gr, gorig = read_map(data / "ground_truth" / "occupancy.yaml")
         for fseed in filter_seeds:
             run_dir = out_dir / (f"{name}_{processes}_filter{fseed}" + ("_images" if images else ""))
@@ -271,6 +272,8 @@ def bench(
                     "dr_rest_bias_ate_m": dr_rest_bias_ate,
                     "gyro_bias_rad_s": s.get("gyro", {}).get("bias_rad_s"),
                     "true_gyro_bias_rad_s": true_bias,
+                    "wheel_scale": s.get("odom_scale", {}).get("scale"),
+                    "true_wheel_scale": true_scale,
                     "map_f1": f1["f1"],
                     "map_precision": f1["precision"],
                     "map_recall": f1["recall"],
@@ -378,6 +381,25 @@ def _true_fog_bias_rad_s(data: Path, t: np.ndarray) -> float | None:
     return None if per_sample is None or t.size < 2 else float(per_sample) / (float(np.mean(np.diff(t))) / 1e9)
 
 
+def _true_wheel_scale(data: Path, params: dict) -> float | None:
+    """True / odometry travel of the simulated drive: the mean of the true wheel diameters
+    (ground_truth/sim_info.yaml) over the mean of the calibration's (``params``), or None for
+    real data."""
+    info = data / "ground_truth" / "sim_info.yaml"
+    if not info.is_file():
+        return None
+    import yaml
+
+    true = yaml.safe_load(info.read_text()).get("wheel_diameter_true_m")
+    if not true:
+        return None
+    return float(np.mean(true)) / (0.5 * (params["left_wheel_diameter_m"] + params["right_wheel_diameter_m"]))
+
+
+def _scale_pct(v: float | None) -> str:
+    return "–" if v is None else f"{100 * (v - 1):+.2f}"
+
+
 def _urad(v: float | None) -> str:
     return "–" if v is None else f"{1e6 * v:.0f}"
 
@@ -385,15 +407,16 @@ def _urad(v: float | None) -> str:
 def format_table(rows: list[dict]) -> str:
     lines = [
         "| seed | world | filter seed | drive s | particles | processes | ATE m | dead reckoning ATE m | ratio | DR, FOG bias at "
-        "rest, ATE m | FOG bias est. / true µrad/s | map F1 (P / R) | wall s | RTF | replay-only RTF | "
-        "of ceiling | dropped |",
-        "|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|",
+        "rest, ATE m | FOG bias est. / true µrad/s | wheel scale est. / true % | map F1 (P / R) | wall s | RTF | "
+        "replay-only RTF | of ceiling | dropped |",
+        "|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
         lines.append(
             f"| {r['seed']} | {_world_text(r)} | {r['filter_seed']} | {r['duration_s']:.0f} | {r['particles']} | {r['processes']} | {r['ate_m']:.3f} | "
             f"{r['dr_ate_m']:.3f} | {r['dr_ate_m'] / max(r['ate_m'], 1e-9):.1f}× | "
             f"{r['dr_rest_bias_ate_m']:.3f} | {_urad(r['gyro_bias_rad_s'])} / {_urad(r['true_gyro_bias_rad_s'])} | "
+            f"{_scale_pct(r.get('wheel_scale'))} / {_scale_pct(r.get('true_wheel_scale'))} | "
             f"{r['map_f1']:.3f} "
             f"({r['map_precision']:.2f} / {r['map_recall']:.2f}) | {r['wall_s']:.1f} | {r['rtf']:.1f}× | "
             f"{r['ceiling_rtf']:.1f}× | {100 * r['ratio_to_ceiling']:.0f} % | {r['dropped']} |"
