@@ -72,6 +72,25 @@ def test_bad_parameter_names_the_parameter(ros_context):
         Predictor(context=ros_context, parameter_overrides=[Parameter("odometry_source", value="gps")])
 
 
+@pytest.mark.parametrize(
+    ("cls", "params", "match"),
+    [
+        (Mapper, {"loops.enabled": True, "occupied_thresh": 2.0}, "occupied_thresh"),
+        (Correlator, {"correlation.odom_scale": True, "mode": "bogus"}, "mode"),
+    ],
+    ids=["mapper", "correlator"],
+)
+def test_bad_parameter_after_the_worker_started_stops_it(cls, params, match, ros_context):
+    """The mapper's loop matches and the correlator's scan pairs run in a worker process started
+    with the node's stage; a parameter found bad after that stops the worker with the error."""
+    import multiprocessing
+
+    before = {p.pid for p in multiprocessing.active_children()}
+    with pytest.raises(ValueError, match=match):
+        cls(context=ros_context, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
+    assert {p.pid for p in multiprocessing.active_children()} <= before
+
+
 def test_live_node_warns_about_undeclared_overrides(ros_context):
     """Started by ros2 launch with a --params-file, ROS ignores names the node does not declare;
     the node names those that no node of the graph declares (another node's are fine)."""

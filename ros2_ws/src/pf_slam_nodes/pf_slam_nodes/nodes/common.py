@@ -179,6 +179,17 @@ def worker_param(node: Node) -> str:
     return kind
 
 
+def close_on_failure(setup: Callable[[], None], close: Callable[[], None]) -> None:
+    """A node's set-up after its stage started a worker process: if ``setup()`` raises (a bad
+    parameter), ``close()`` stops the worker before the error goes on (no process outlives a
+    node that was never made)."""
+    try:
+        setup()
+    except BaseException:
+        close()
+        raise
+
+
 class SideWork:
     """A SLAM node's side work (core/deferred.py), as its ``worker`` parameter says: ``process``,
     each object it hands work to lives in a worker process named after the node

@@ -49,6 +49,7 @@ from .common import (
     ScanQueue,
     SideWork,
     announce_when_matched,
+    close_on_failure,
     declare_config,
     mount_of,
     param,
@@ -74,6 +75,9 @@ class Correlator(Node):
             declare_config(self, "localization"),
             offload=self.side.offload,
         )
+        close_on_failure(self._setup, self.stage.close)
+
+    def _setup(self) -> None:
         self.mode = param(self, "mode", "slam")
         if self.mode not in ("slam", "localization"):
             raise ValueError(f"node correlator: parameter 'mode' must be 'slam' or 'localization', got {self.mode!r}")

@@ -63,6 +63,7 @@ from .common import (
     ScanQueue,
     SideWork,
     announce_when_matched,
+    close_on_failure,
     declare_config,
     mount_of,
     param,
@@ -120,6 +121,9 @@ class Mapper(Node):
             # a worker process only where loops are matched (not on a fixed map)
             offload=self.side.offload if self.mode == "slam" else inline,
         )
+        close_on_failure(self._setup, self.stage.close)
+
+    def _setup(self) -> None:
         self._open: tuple[int, int] | None = None  # (scan index, stamp) of the scan whose loop match runs
         self._poll = self.create_timer(0.0002, self._finish_open)  # while one runs: is its answer here?
         self._poll.cancel()

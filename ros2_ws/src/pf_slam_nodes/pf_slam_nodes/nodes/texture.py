@@ -212,7 +212,10 @@ class TextureNode(Node):
         self.rig: StereoRig | None = None
         if self.calibration_dir:
             self.rig = read_stereo_rig(self.calibration_dir)
-        # the engine once the parameters are checked: a worker process imports while the graph starts
+        expected_observers = param(self, "expected_observers", 0)
+        use_map_metadata = param(self, "use_map_metadata", True)
+        # the engine once every parameter is read and checked (nothing after this can fail on a
+        # parameter and leave its worker process behind): it imports while the graph starts
         self._backend = make_backend(self.worker, self.cfg, self.worker_nice)
 
         self.lock = threading.Lock()
@@ -255,7 +258,7 @@ class TextureNode(Node):
         self.pub_status = self.create_publisher(String, TEXTURE_STATUS, qos.latched())
         self.pub_progress = self.create_publisher(UInt32MultiArray, topics.TEXTURE_PROGRESS, qos.latched())
         self._progress_sent: tuple[int, int] = (-1, -1)
-        announce_when_matched(self, [(self.pub_texture, param(self, "expected_observers", 0))])
+        announce_when_matched(self, [(self.pub_texture, expected_observers)])
         img_qos = qos.pipeline(max(4 * self.max_pending_pairs, 20))
         if self.mode == "depth":
             self.create_subscription(Image, rgb_topic, lambda m: self._on_rgbd("left", m), img_qos)
@@ -270,7 +273,7 @@ class TextureNode(Node):
             self.create_subscription(CameraInfo, right_info, lambda m: self._on_info("right", m), qos.pipeline(10))
         self.create_subscription(TFMessage, topics.TF_STATIC, self._on_tf_static, qos.latched(10))
         self.create_subscription(PoseStamped, topics.POSE, self._on_pose, qos.pipeline(), raw=True)
-        if param(self, "use_map_metadata", True):  # same geometry, without the cells
+        if use_map_metadata:  # same geometry, without the cells
             self.create_subscription(MapMetaData, topics.MAP_METADATA, self._on_map_info, qos.latched())
         else:
             self.create_subscription(OccupancyGrid, topics.MAP, lambda m: self._on_map_info(m.info), qos.latched())
