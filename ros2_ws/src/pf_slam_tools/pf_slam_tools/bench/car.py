@@ -369,15 +369,20 @@ def format_texture_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def _sim_info(data: Path) -> dict:
+    """The simulator's true values (ground_truth/sim_info.yaml), or {} for real data."""
+    info = data / "ground_truth" / "sim_info.yaml"
+    if not info.is_file():
+        return {}
+    import yaml
+
+    return yaml.safe_load(info.read_text()) or {}
+
+
 def _true_fog_bias_rad_s(data: Path, t: np.ndarray) -> float | None:
     """The simulator's FOG yaw bias (rad/s) from ground_truth/sim_info.yaml and the FOG's stamps
     ``t`` (ns; the bias is per sample), or None for real data."""
-    info = data / "ground_truth" / "sim_info.yaml"
-    if not info.is_file():
-        return None
-    import yaml
-
-    per_sample = yaml.safe_load(info.read_text()).get("fog_yaw_bias_rad_per_sample")
+    per_sample = _sim_info(data).get("fog_yaw_bias_rad_per_sample")
     return None if per_sample is None or t.size < 2 else float(per_sample) / (float(np.mean(np.diff(t))) / 1e9)
 
 
@@ -385,12 +390,7 @@ def _true_wheel_scale(data: Path, params: dict) -> float | None:
     """True / odometry travel of the simulated drive: the mean of the true wheel diameters
     (ground_truth/sim_info.yaml) over the mean of the calibration's (``params``), or None for
     real data."""
-    info = data / "ground_truth" / "sim_info.yaml"
-    if not info.is_file():
-        return None
-    import yaml
-
-    true = yaml.safe_load(info.read_text()).get("wheel_diameter_true_m")
+    true = _sim_info(data).get("wheel_diameter_true_m")
     if not true:
         return None
     return float(np.mean(true)) / (0.5 * (params["left_wheel_diameter_m"] + params["right_wheel_diameter_m"]))
