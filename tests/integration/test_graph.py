@@ -107,6 +107,8 @@ def test_intel_segment_against_relations_and_reference_map(data_dir, tmp_path, r
     convert_carmen(seg, tmp_path / "bag")
     res = run(str(tmp_path / "bag"), tmp_path / "out", progress=False, domain_id=ros_domain)
     assert res.summary["scans_processed"] == 300 and res.summary["scans_dropped"] == 0
+    # the indoor profile's recovery (correlation.recover_search_m) is on; nothing slides off here
+    assert res.summary["recoveries"] == {"count": 0, "last": None}
 
     # Kümmerle relations whose both stamps fall in the segment
     t_est, p_est = read_trajectory(tmp_path / "out" / "trajectory.tum")

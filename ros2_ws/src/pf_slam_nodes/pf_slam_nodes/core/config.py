@@ -11,70 +11,10 @@ Defaults are tuned for the CARMEN indoor logs (Intel Research Lab, MIT CSAIL): 0
 from __future__ import annotations
 
 import dataclasses
-import math
-from collections.abc import Mapping
-from typing import Any, TypeVar
 
 import numpy as np
 
-_T = TypeVar("_T", bound="_ConfigBase")
-
-
-def _check_finite(name: str, value: Any) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ValueError(f"{name} must be a finite number, got {value!r}")
-
-
-def _check_nonneg(name: str, value: Any) -> None:
-    _check_finite(name, value)
-    if value < 0:
-        raise ValueError(f"{name} must be >= 0, got {value!r}")
-
-
-def _check_pos(name: str, value: Any) -> None:
-    _check_finite(name, value)
-    if value <= 0:
-        raise ValueError(f"{name} must be > 0, got {value!r}")
-
-
-def _check_unit(name: str, value: Any) -> None:
-    if not 0.0 <= value <= 1.0:
-        raise ValueError(f"{name} must be in [0, 1], got {value!r}")
-
-
-def _check_int(name: str, value: Any, minimum: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ValueError(f"{name} must be an int, got {value!r}")
-    if value < minimum:
-        raise ValueError(f"{name} must be >= {minimum}, got {value!r}")
-
-
-class _ConfigBase:
-    """Mixin: ``from_dict`` with unknown-key rejection."""
-
-    @classmethod
-    def from_dict(cls: type[_T], d: Mapping[str, Any]) -> _T:
-        """Build the config from a mapping; unknown keys raise ``ValueError`` naming them.
-
-        Parameters
-        ----------
-        d : Mapping[str, Any]
-            Parameter name -> value. Missing keys keep their defaults.
-
-        Returns
-        -------
-        config
-            A validated instance.
-        """
-        names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise ValueError(f"{cls.__name__}: unknown parameter(s) {unknown}; known: {sorted(names)}")
-        return cls(**dict(d))  # type: ignore[call-arg]
-
-    def to_dict(self) -> dict[str, Any]:
-        """Return the parameters as a plain dict (inverse of :meth:`from_dict`)."""
-        return dataclasses.asdict(self)  # type: ignore[call-overload]
+from .configbase import _check_finite, _check_int, _check_nonneg, _check_pos, _check_unit, _ConfigBase
 
 
 @dataclasses.dataclass(frozen=True)
@@ -399,6 +339,20 @@ class CorrelationConfig(_ConfigBase):
         laser, mixed returns). 0 disables the rule.
     shadow_beams : int
         correlation.shadow_jump_m: beams on each side of a beam that are its neighbours.
+    recover_search_m : float
+        A filter that slid off the map (along a corridor, past the reach of the window) finds
+        its way back (:class:`~.recovery.Recovery`): after each correction whose best fit is
+        worse than ``-recover_min_gain``, the best particle is searched again in a window of
+        +-``recover_search_m`` (capped by the likelihood field's padding: 0.75 m on a 0.05 m
+        grid) and +-``recover_search_yaw_rad``; when that finds a fit better by at least
+        ``recover_min_gain`` and by half (score >= half the local one) on
+        ``recover_corrections`` consecutive corrections, with shifts that agree within 0.1 (m,
+        m, rad), the predicted set is shifted by it and corrected again. One correction alone
+        never moves the set: while the robot explores, a scan often fits the map better a
+        little way back (its new wall is not mapped yet), but not the same way scan after scan.
+        0 (default): off; the indoor profile sets 0.7.
+    recover_search_yaw_rad, recover_corrections, recover_min_gain
+        See ``recover_search_m``.
     """
 
     search_x_m: float = 0.2
@@ -429,9 +383,15 @@ class CorrelationConfig(_ConfigBase):
     odom_scale_min_curvature: float = 1000.0
     shadow_jump_m: float = 0.0
     shadow_beams: int = 1
+    recover_search_m: float = 0.0
+    recover_search_yaw_rad: float = 0.2
+    recover_corrections: int = 3
+    recover_min_gain: float = 15.0
 
     def __post_init__(self) -> None:
         _check_int("shadow_beams", self.shadow_beams, 1)
+        _check_int("recover_corrections", self.recover_corrections, 1)
+        _check_pos("recover_min_gain", self.recover_min_gain)
         if not isinstance(self.odom_scale, bool):
             raise ValueError(f"odom_scale must be a bool, got {self.odom_scale!r}")
         _check_pos("odom_scale_window_m", self.odom_scale_window_m)
@@ -443,7 +403,15 @@ class CorrelationConfig(_ConfigBase):
             _check_unit(name, getattr(self, name))
         if not isinstance(self.skip_unknown, bool):
             raise ValueError(f"skip_unknown must be a bool, got {self.skip_unknown!r}")
-        for name in ("prior_sigma_xy_m", "prior_sigma_yaw_rad", "shadow_jump_m", "search_x_m", "search_y_m"):
+        for name in (
+            "prior_sigma_xy_m",
+            "prior_sigma_yaw_rad",
+            "shadow_jump_m",
+            "search_x_m",
+            "search_y_m",
+            "recover_search_m",
+            "recover_search_yaw_rad",
+        ):
             _check_nonneg(name, getattr(self, name))
         _check_nonneg("search_yaw_rad", self.search_yaw_rad)
         _check_pos("step_xy_m", self.step_xy_m)

@@ -42,6 +42,7 @@ from .loops import LoopCloser, scan_polygon
 from .motion import sample_odometry_motion
 from .mount import mounted_scan
 from .odometry import OdomScaleEstimator
+from .recovery import Recovery
 from .scan import planar_scan, scan_to_points, shadow_beams, sparse_scan_range, transform_points, valid_beams
 from .scanpair import ScalePairs
 
@@ -191,6 +192,8 @@ class CorrectionStage:
         self.pose = np.zeros(3)
         self.num_corrections = 0
         self.num_resamples = 0
+        # correlation.recover_search_m (mapping only): a set that slid off the map is shifted back
+        self.recovery = Recovery() if corr_cfg.recover_search_m > 0 else None
         self.clock = StageClock()  # "correlate" (+ weights), "resample" (+ pose estimate), "field"
         c = corr_cfg
         self.odom_scale = (
@@ -367,7 +370,13 @@ class CorrectionStage:
             corr_cfg = self.corr_cfg  # a sparse scan (grid.min_return_fraction): its own, longer cut
             if cut != corr_cfg.range_max_m:
                 corr_cfg = dataclasses.replace(corr_cfg, range_max_m=cut)
+            predicted = particles
             particles, scores = correlate(particles, pts, self.field, corr_cfg, match)
+            if self.recovery is not None and self.localizer is None:
+                n = self.num_corrections
+                particles, scores = self.recovery.correct(
+                    n, predicted, particles, scores, pts, self.field, corr_cfg, match
+                )
             log_w = update_log_weights(log_w, scores, self.corr_cfg.temperature)
         self.clock.add("correlate", t0)
         t0 = time.perf_counter()

@@ -102,6 +102,7 @@ class Correlator(Node):
         self.create_subscription(OccupancyGrid, topics.GRID, self._on_grid, qos.pipeline(10))
         self.particles_now = 0
         self._scale_pairs = 0  # correlation.odom_scale: the pairs in the last status published
+        self._recoveries = 0  # correlation.recover_search_m: the shifts in the last status published
         self._publish_status = status_publisher(self, self._status)
         self.mount_ready = not param(self, "mount_from_tf", False)  # else: wait for the predictor's decision
         if not self.mount_ready:
@@ -121,6 +122,8 @@ class Correlator(Node):
             out["localization"] = self.stage.localization_status(self.particles_now)
         if (scale := self.stage.scale_status()) is not None:
             out["odom_scale"] = scale
+        if (rec := self.stage.recovery) is not None:
+            out["recoveries"] = {"count": rec.fired, "last": rec.last}
         return out
 
     def _on_mount(self, decision: dict) -> None:
@@ -226,6 +229,14 @@ class Correlator(Node):
                 self.corrections_sent += 1
                 if self.stage.scale_measurements != self._scale_pairs:  # each new pair, not only once a second
                     self._scale_pairs = self.stage.scale_measurements
+                    self._publish_status()
+                if (rec := self.stage.recovery) is not None and rec.fired != self._recoveries:
+                    self._recoveries = rec.fired
+                    self.get_logger().info(
+                        f"scan {pa.scan_index}: the set had slid off the map; shifted by {rec.last['shift']} "
+                        f"(x m, y m, yaw rad) where {self.stage.corr_cfg.recover_corrections} wide searches agreed, "
+                        f"best fit {rec.last['score_before']} -> {rec.last['score_after']}"
+                    )
                     self._publish_status()
                 self.pub_cloud.publish(self.cloud_cdr.pack(particles, stamp))
                 if self.mode == "localization" and particles.shape[0] != self.particles_now:

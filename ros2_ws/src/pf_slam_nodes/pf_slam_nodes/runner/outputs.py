@@ -183,6 +183,7 @@ def build_summary(plan: RunPlan, dom: RosDomain, done: GraphOutcome, extra: dict
         **({"gyro": gyro} if (gyro := rec.node_status.get("predictor", {}).get("gyro")) else {}),
         **({"odom_scale": sc} if (sc := rec.node_status.get("correlator", {}).get("odom_scale")) else {}),
         **({"localization": loc} if (loc := rec.node_status.get("correlator", {}).get("localization")) else {}),
+        **({"recoveries": rc} if (rc := rec.node_status.get("correlator", {}).get("recoveries")) else {}),
         **({"loops": lp} if (lp := rec.node_status.get("mapper", {}).get("loops")) else {}),
         "complete": stopped_by is None,
         **({} if stopped_by is None else {"stopped_by": stopped_by}),

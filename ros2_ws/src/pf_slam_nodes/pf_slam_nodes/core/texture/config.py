@@ -6,7 +6,7 @@ import dataclasses
 
 import cv2
 
-from ..config import _check_finite, _check_int, _check_nonneg, _check_pos, _ConfigBase
+from ..configbase import _check_finite, _check_int, _check_nonneg, _check_pos, _ConfigBase
 
 #: ROS image encoding -> OpenCV conversion to RGB (OpenCV names a Bayer pattern by the colours
 #: of the second row's second and third pixels: ``rggb`` is OpenCV's ``BayerBG``).
