@@ -351,8 +351,13 @@ class CorrelationConfig(_ConfigBase):
         never moves the set: while the robot explores, a scan often fits the map better a
         little way back (its new wall is not mapped yet), but not the same way scan after scan.
         0 (default): off; the indoor profile sets 0.7.
-    recover_search_yaw_rad, recover_corrections, recover_min_gain
-        See ``recover_search_m``.
+    recover_search_yaw_rad : float
+        correlation.recover_search_m: the wide search's yaw half-width (rad).
+    recover_corrections : int
+        correlation.recover_search_m: consecutive corrections whose wide searches must agree.
+    recover_min_gain : float
+        correlation.recover_search_m: a correction is searched wide when its best fit (summed
+        log-likelihood) is below minus this, and a shift must improve that fit by at least this.
     """
 
     search_x_m: float = 0.2
