@@ -81,7 +81,7 @@ def from_occupancy(data: np.ndarray, resolution: float, origin) -> OccupancyMap:
     Returns
     -------
     OccupancyMap
-        Pass to :func:`pf_slam_nodes.core.correlation.build_likelihood_field_from_map`.
+        Pass to :func:`pf_slam_nodes.core.likelihood.build_likelihood_field_from_map`.
     """
     arr = np.asarray(data)
     if arr.ndim != 2:

@@ -26,9 +26,10 @@ import cv2
 import numpy as np
 
 from .config import CorrelationConfig, LocalizationConfig
-from .correlation import _REMAP_MAX_CELLS, LikelihoodField, _points_in_table, _use_remap, build_likelihood_field
+from .correlation import _REMAP_MAX_CELLS, _points_in_table, _use_remap
 from .filter import _resample_from_u, normalize_log_weights
 from .geometry import wrap_angle
+from .likelihood import LikelihoodField, build_likelihood_field
 
 # keep the (chunk, M) point arrays of the coarse scoring below this many elements
 _CHUNK_ELEMENTS = 4_000_000

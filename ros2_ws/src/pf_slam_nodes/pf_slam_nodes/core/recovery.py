@@ -15,8 +15,9 @@ import dataclasses
 import numpy as np
 
 from .config import CorrelationConfig
-from .correlation import LikelihoodField, correlate
+from .correlation import correlate
 from .geometry import compose, relative_pose
+from .likelihood import LikelihoodField
 
 
 class Recovery:

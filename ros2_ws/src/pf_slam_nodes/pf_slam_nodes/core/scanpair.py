@@ -30,8 +30,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .config import CorrelationConfig
-from .correlation import LikelihoodField, build_likelihood_field_from_mask, match_cost
+from .correlation import match_cost
 from .geometry import relative_pose
+from .likelihood import LikelihoodField, build_likelihood_field_from_mask
 from .scan import transform_points
 
 #: candidate offsets: a coarse pass over the whole window, then a fine one around its best

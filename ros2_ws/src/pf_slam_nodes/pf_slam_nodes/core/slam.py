@@ -30,9 +30,9 @@ from .config import (
     ResampleConfig,
     WheelsConfig,
 )
-from .correlation import GridLikelihoodField
 from .geometry import compose
 from .grid import LogOddsGrid
+from .likelihood import GridLikelihoodField
 from .scheduler import PredictorScheduler, PublishPose, SendCorrection
 from .stages import STAGE_STEPS, CorrectionStage, MappingStage, PredictionStage, stage_seconds
 

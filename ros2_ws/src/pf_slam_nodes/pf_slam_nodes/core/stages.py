@@ -32,11 +32,12 @@ from .config import (
     OdometryMotionConfig,
     ResampleConfig,
 )
-from .correlation import GridLikelihoodField, correlate
+from .correlation import correlate
 from .deferred import Offload, inline
 from .filter import n_eff, resample, update_log_weights
 from .geometry import compose, relative_pose
 from .grid import LogOddsGrid, grid_geometry, grow_array, growth_plan
+from .likelihood import GridLikelihoodField
 from .localization import Localizer, pending_from_config
 from .loops import LoopCloser, scan_polygon
 from .motion import sample_odometry_motion
