@@ -221,6 +221,36 @@ def test_remap_and_numpy_paths_agree(monkeypatch):
     np.testing.assert_allclose(score_remap, score_np, rtol=0.05, atol=1.0)
 
 
+def test_one_particle_wide_search_gathers_in_numpy_and_finds_the_remap_pose(monkeypatch):
+    """Few candidates x points per shift (one particle's +-0.7 m search, recovery.py) go through
+    one numpy gather instead of one remap call per shift (225 here): the same pose and score as
+    the remap path; many particles stay on remap."""
+    import pf_slam_nodes.core.correlation as corr
+
+    occ = world()
+    true_pose = np.array([6.1, 5.2, 0.4])
+    ang = beam_angles(-math.pi / 2, math.pi / 180, 181)
+    pts = scan_to_points(raycast(occ, true_pose, ang), ang, 0.1, 19.0)[::2]
+    cfg = CorrelationConfig(search_x_m=0.7, search_y_m=0.7)
+    field = build_likelihood_field(occ, RES, cfg.sigma_m, cfg.occupied_threshold, (0.0, 0.0), cfg.max_distance_m)
+    start = compose(true_pose, np.array([0.42, -0.31, 0.1]))[None]
+    calls = []
+    orig = corr._window_scores_remap
+    monkeypatch.setattr(corr, "_window_scores_remap", lambda *a: calls.append(1) or orig(*a))
+    w_np, s_np = corr.window_search(start, pts, field, cfg)
+    assert calls == []
+    np.testing.assert_allclose(w_np[0], true_pose, atol=0.051)
+    monkeypatch.setattr(corr, "_REMAP_MIN_LOOKUPS", 0)
+    w_remap, s_remap = corr.window_search(start, pts, field, cfg)
+    assert len(calls) == 1  # one chunk: its 225 shifts are 225 remap calls
+    np.testing.assert_allclose(w_np, w_remap, atol=1e-9)
+    np.testing.assert_allclose(s_np, s_remap, atol=0.05 * abs(s_np[0]) + 1e-6)
+    monkeypatch.setattr(corr, "_REMAP_MIN_LOOKUPS", 2048)
+    calls.clear()
+    corr.window_search(np.repeat(start, 10, axis=0), pts, field, cfg)
+    assert len(calls) == 1  # one chunk: its 225 shifts are 225 remap calls
+
+
 def test_window_search_any_particle_count_chunks_the_remap():
     """cv2.remap takes fewer than SHRT_MAX (32767) rows: 4000 particles x 9 yaws = 36000 candidate
     rows crashed it. Chunked over particles: 20 000 particles work, and every particle's result
