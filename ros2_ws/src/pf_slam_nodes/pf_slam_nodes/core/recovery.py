@@ -15,7 +15,7 @@ import dataclasses
 import numpy as np
 
 from .config import CorrelationConfig
-from .correlation import correlate
+from .correlation import correlate, window_reach_m
 from .geometry import compose, relative_pose
 from .likelihood import LikelihoodField
 
@@ -55,10 +55,7 @@ class Recovery:
         b = int(np.argmax(scores))
         best = float(scores[b])
         if best < -cfg.recover_min_gain:
-            res = field.resolution
-            sc = max(1, int(round(cfg.step_xy_m / res)))
-            reach = ((field.pad - 1) // 2 // sc) * sc * res  # the padding bounds the window's shifts
-            half = min(cfg.recover_search_m, reach)
+            half = min(cfg.recover_search_m, window_reach_m(field, cfg.step_xy_m))
             wide = dataclasses.replace(cfg, search_x_m=half, search_y_m=half, search_yaw_rad=cfg.recover_search_yaw_rad)
             pose, score = correlate(corrected[b : b + 1], points, field, wide, match)
             if score[0] >= self.RATIO * best and score[0] >= best + cfg.recover_min_gain:
