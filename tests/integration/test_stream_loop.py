@@ -150,6 +150,8 @@ def test_loop_closure_stream_loop_equals_graph(tmp_path, ros_domain):
     stamps = np.array([s for s, _ in stream])
     final = slam.trajectory(stamps / 1e9, np.array([p for _, p in stream]))  # (+ the end's rendering, if due)
     assert res.summary["loops"]["map_renders"] == slam.mapper.rebuilds
+    # every re-rendering during the run sent the poses so far in its new frame (the live texture's)
+    assert res.summary["loops"]["loop_trajectories"] == slam.corrector.frame_changes
     assert res.summary["loops"]["matched_in"] == "process"  # the node's default: a worker process
     t, p = read_trajectory(tmp_path / "sample" / "trajectory.tum")[:2]
     assert np.allclose(t, stamps / 1e9, atol=1e-9)

@@ -230,6 +230,48 @@ def test_final_texture_is_placed_on_the_corrected_trajectory(ros_context, kaist)
             assert abs(a.min() - b.min() - d) < 0.25 and abs(a.max() - b.max() - d) < 0.25
 
 
+def test_live_texture_moves_with_a_closed_loop_and_the_final_one_waits(ros_context, kaist):
+    """A closed loop during the run (pf_slam/loop_trajectory) places the textured pairs again at
+    once, without making the texture final; the end's pf_slam/trajectory still decides where
+    the final texture lies."""
+    from nav_msgs.msg import Path as PathMsg
+
+    from pf_slam_interfaces.msg import ReplayStatus
+    from pf_slam_nodes.ros import cdr, topics
+
+    ctx = ros_context
+    with _graph(ctx, kaist, await_trajectory=True, trajectory_timeout_s=30.0, final_idle_s=0.5) as (node, feed, ex):
+        pub_loop = feed.node.create_publisher(PathMsg, topics.LOOP_TRAJECTORY, qos.latched())
+        pub_traj = feed.node.create_publisher(PathMsg, topics.TRAJECTORY, qos.latched())
+        pub_done = feed.node.create_publisher(ReplayStatus, topics.REPLAY_STATUS, qos.latched())
+        assert spin_until(ex, feed.matched, 10)
+        feed.publish_static()
+        feed.publish_poses(T0, T0 + 300_000_000)
+        feed.publish_pair(T0 + 100_000_000)
+        assert spin_until(ex, lambda: node.frames_processed == 1, 30), node.counters()
+        before = node.publish_texture()
+        st = np.arange(T0, T0 + 300_000_001, 10_000_000, dtype=np.int64)
+
+        def moved(offset) -> None:
+            (xb, yb), (xa, ya) = _coloured_xy(before), _coloured_xy(node.publish_texture())
+            for a, b, d in ((xa, xb, offset[0]), (ya, yb, offset[1])):
+                assert abs(np.median(a) - np.median(b) - d) < 0.15
+
+        pub_loop.publish(cdr.path_bytes(st, np.tile([1.0, -0.4, 0.0], (len(st), 1)), int(st[-1]), "map"))
+        assert spin_until(ex, lambda: node.counters()["loop_replacements"] == 1, 30), node.counters()
+        assert not node.counters()["final"] and node.counters()["replaced"]["pairs_moved"] == 1
+        moved((1.0, -0.4))
+        pub_done.publish(ReplayStatus(done=True, topics=["/scan"], counts=[31]))
+        for _ in range(10):  # a loop's placement is not the final one
+            ex.spin_once(timeout_sec=0.1)
+        assert not node.counters()["final"]
+        pub_traj.publish(cdr.path_bytes(st, np.tile([2.0, 0.6, 0.0], (len(st), 1)), int(st[-1]), "map"))
+        assert spin_until(ex, lambda: bool(feed.status) and feed.status[-1]["final"], 30), node.counters()
+        c = node.counters()
+        assert c["loop_replacements"] == 1 and abs(c["replaced"]["shift_median_m"] - np.hypot(1.0, 1.0)) < 1e-3
+        moved((2.0, 0.6))
+
+
 def test_flooded_pairs_are_skipped_not_queued(ros_context, kaist):
     ctx = ros_context
     with _graph(ctx, kaist, queue_depth=1, max_pending_pairs=20, use_map_metadata=False) as (node, feed, ex):

@@ -8,7 +8,8 @@ Publishes: pf_slam/grid (after every integration, the patch of cells the scan to
 the correlator), map + map_metadata (latched, on a timer and once more after the last scan),
 path (on the timer: the poses of the corrected scans), pf_slam/trajectory (with loops.enabled,
 latched, once every scan's pose has arrived after the last one: every pose in the final frame
-of the loop closure), /tf (map -> odom = map_T_base *
+of the loop closure), pf_slam/loop_trajectory (latched, at every closed loop that re-renders the
+map: every scan's pose received so far, in the new frame), /tf (map -> odom = map_T_base *
 odom_T_base^-1, at every correction: between corrections map -> odom does not change, since scan
 poses are then the corrected pose composed with the odometry increment), /tf_static (base_frame ->
 the scan's frame from filter.sensor_offset_* / laser.extrinsic, once, if publish_sensor_tf).
@@ -156,6 +157,8 @@ class Mapper(Node):
         self.pub_meta = self.create_publisher(MapMetaData, topics.MAP_METADATA, qos.latched())
         self.pub_path = self.create_publisher(Path, topics.PATH, qos.outputs(10))
         self.pub_trajectory = self.create_publisher(Path, topics.TRAJECTORY, qos.latched())
+        self.pub_loop_trajectory = self.create_publisher(Path, topics.LOOP_TRAJECTORY, qos.latched())
+        self.loop_trajectories = 0  # pf_slam/loop_trajectory messages sent
         self.poses_seen = 0  # /pose messages received (the final trajectory waits for all of them)
         self.final_map_sent = self.final_trajectory_sent = False
         self.scans_total = 0  # the bag's scans, once the final map went out
@@ -215,6 +218,7 @@ class Mapper(Node):
                 "rejected": lc.rejected,
                 "dropped": lc.dropped,
                 "map_renders": self.stage.rebuilds,
+                "loop_trajectories": self.loop_trajectories,  # pf_slam/loop_trajectory messages
                 "matched_in": lc.matcher.kind,  # "process" (worker: process) or "inline" (in the node)
             }
         return out
@@ -387,6 +391,10 @@ class Mapper(Node):
         if patch.transform is not None:  # a closed loop re-rendered the map: the filter's frame follows
             self.pub_grid.publish(convert.frame_change_msg(patch.transform, stamp, self.map_frame))
             t = patch.transform
+            if len(self.trajectory):  # the poses so far in the new frame: the live texture moves with them
+                stamps, poses = self.corrected_trajectory()
+                self.pub_loop_trajectory.publish(cdr.path_bytes(stamps, poses, stamp, self.map_frame))
+                self.loop_trajectories += 1
             self.get_logger().info(
                 f"scan {index}: loop closed ({len(self.stage.loops.loops)} so far), map re-rendered "
                 f"from the optimised poses; the frame moves by x {t[0]:.3f} y {t[1]:.3f} m, "

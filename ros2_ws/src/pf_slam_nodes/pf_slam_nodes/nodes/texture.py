@@ -19,6 +19,10 @@ Subscribes
   scan's pose in the final, corrected frame): once the pairs it covers are textured, the texture
   is rebuilt with every kept pair at its corrected pose (core ``PairPatches``; the online poses
   of ``pose`` are the filter's, which a closed loop corrects only afterwards).
+* ``pf_slam/loop_trajectory`` (``nav_msgs/Path``, latched; the mapper's at every closed loop that
+  re-renders the map: every pose so far in the new frame): the same, during the run, so the live
+  texture stays on the re-rendered map (counted: ``loop_replacements``); pairs after its last
+  pose keep their online poses until the next one. Never taken for the final placement.
 * ``pf_slam/replay_status`` (latched): at the end of a bag, once nothing is left to do (or
   ``final_idle_s`` passed without progress), the final texture is published once more and
   pairs still waiting for a pose are dropped. With ``await_trajectory`` (``pf-slam run`` sets it
@@ -42,7 +46,8 @@ Publishes
 * ``pf_slam/texture_status`` (``std_msgs/String``, latched): JSON counters
   ``frames_received`` (complete pairs), ``frames_processed``, ``frames_skipped`` (replaced
   by a newer pair while queued: load), ``frames_dropped`` (no pose / calibration for them),
-  ``ms_per_frame``, ``final``.
+  ``ms_per_frame``, ``replaced`` (the last re-placement: pairs moved, median / max shift),
+  ``loop_replacements``, ``final``.
 * ``pf_slam/texture_progress`` (``std_msgs/UInt32MultiArray``, latched): ``[pairs finished
   (processed + skipped + dropped), pairs waiting for their pose]`` after every change: in
   ``--rate max`` the replay holds the next pair back while ``max_pairs_in_flight`` pairs are
@@ -246,8 +251,11 @@ class TextureNode(Node):
         self.last_error = ""
         self._replay_done = False
         self._replay_done_at: float | None = None
-        self._trajectory: tuple[np.ndarray, np.ndarray] | None = None  # pf_slam/trajectory, not yet applied
+        # pf_slam/trajectory (final) or pf_slam/loop_trajectory (a closed loop, mid-run), not yet applied
+        self._trajectory: tuple[np.ndarray, np.ndarray, bool] | None = None
         self.replaced: dict = {}  # what the last re-placement did (counters' "replaced")
+        self.replaced_final = False  # placed on the final trajectory
+        self.loop_replacements = 0  # placements on a closed loop's trajectory during the run
         self._final_sent = False
         self._last_activity = time.monotonic()
         self._last_input = time.monotonic()
@@ -279,6 +287,9 @@ class TextureNode(Node):
             self.create_subscription(OccupancyGrid, topics.MAP, lambda m: self._on_map_info(m.info), qos.latched())
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, qos.latched())
         self.create_subscription(Path, topics.TRAJECTORY, self._on_trajectory, qos.latched(), raw=True)
+        self.create_subscription(
+            Path, topics.LOOP_TRAJECTORY, lambda raw: self._on_trajectory(raw, final=False), qos.latched(), raw=True
+        )
         self.create_timer(period, self._on_timer)
         self._worker = threading.Thread(target=self._work, name="texture_worker", daemon=True)
         self._worker.start()
@@ -445,14 +456,19 @@ class TextureNode(Node):
         if self._replay_done and self._replay_done_at is None:
             self._replay_done_at = time.monotonic()
 
-    def _on_trajectory(self, raw: bytes) -> None:
+    def _on_trajectory(self, raw: bytes, final: bool = True) -> None:
+        """The final trajectory, or (``final`` False) a closed loop's during the run; either
+        places every kept pair again once the pairs it covers are textured. A loop's never
+        replaces a final one still waiting."""
         try:
             stamps, poses = cdr.path_xy_yaw(raw)
         except ValueError as exc:
-            self.get_logger().error(f"{topics.TRAJECTORY}: message dropped: {exc}")
+            topic = topics.TRAJECTORY if final else topics.LOOP_TRAJECTORY
+            self.get_logger().error(f"{topic}: message dropped: {exc}")
             return
         with self._cond:
-            self._trajectory = (stamps.astype(np.float64) / 1e9, poses)
+            if final or self._trajectory is None or not self._trajectory[2]:
+                self._trajectory = (stamps.astype(np.float64) / 1e9, poses, final)
             self._cond.notify()
 
     # ------------------------------------------------------------------ scheduling
@@ -599,7 +615,7 @@ class TextureNode(Node):
         last = self._trajectory[0][-1] if len(self._trajectory[0]) else -np.inf
         return not any(p.stamp_ns / 1e9 <= last for p in self._awaiting)
 
-    def _replace(self, stamps_s: np.ndarray, poses: np.ndarray) -> None:
+    def _replace(self, stamps_s: np.ndarray, poses: np.ndarray, final: bool) -> None:
         t0 = time.perf_counter()
         out = self._backend.call("replace", stamps_s, poses)
         ms = 1e3 * (time.perf_counter() - t0)
@@ -609,10 +625,11 @@ class TextureNode(Node):
                 k: out[k] for k in ("pairs_moved", "pairs_frozen", "shift_median_m", "shift_max_m") if k in out
             }
             self.replaced["ms"] = round(ms, 1)
+            self.replaced_final = self.replaced_final or final
+            self.loop_replacements += 0 if final else 1
             self._dirty = True
-        self.get_logger().info(
-            f"texture placed again on the corrected trajectory ({len(stamps_s)} poses): {json.dumps(self.replaced)}"
-        )
+        what = "the corrected trajectory" if final else "a closed loop's trajectory"
+        self.get_logger().info(f"texture placed again on {what} ({len(stamps_s)} poses): {json.dumps(self.replaced)}")
 
     def _sync_anchor(self) -> None:
         """Hand the map origin received since the last call to the engine (it aligns its cells
@@ -685,6 +702,7 @@ class TextureNode(Node):
                 "texture_memory_mb": round(self._texture_bytes / 2**20, 1),
                 "kept_memory_mb": round(self._kept_bytes / 2**20, 1),
                 **({"replaced": dict(self.replaced)} if self.replaced else {}),
+                "loop_replacements": self.loop_replacements,
                 "final": self._final_sent,
                 "mode": self.mode,
                 "worker": self.worker,
@@ -751,7 +769,7 @@ class TextureNode(Node):
             # with await_trajectory the final texture is the one placed on the corrected trajectory
             placed = (
                 not self.await_trajectory
-                or (self.replaced and self._trajectory is None)
+                or (self.replaced_final and self._trajectory is None)
                 or now - (self._replay_done_at or now) > self.trajectory_timeout_s
             )
             finish = (

@@ -21,6 +21,9 @@ SCAN_CORRECTED = "pf_slam/scan_corrected"
 GRID = "pf_slam/grid"  # mapper -> correlator: the occupancy grid after every integration
 # mapper -> recorder, users: every scan's pose in the final (loop-closed) frame, latched, at the end
 TRAJECTORY = "pf_slam/trajectory"
+# mapper -> texture, users: at every closed loop that re-renders the map, every scan's pose so far
+# in the new frame (latched): the live texture is placed again on it
+LOOP_TRAJECTORY = "pf_slam/loop_trajectory"
 REPLAY_STATUS = "pf_slam/replay_status"  # bag_replay -> all: end of bag
 REPLAY_STALL = "pf_slam/replay_stall"  # bag_replay -> predictor: stopped at max_in_flight, counts so far
 READY = "pf_slam/ready"  # each stage, once its outputs are matched: the replay may start
