@@ -443,7 +443,8 @@ def main(
             "\n\nStereo pairs through the texture node (1 Hz, `--rate max`: the replay paces on it), "
             "colour error (the map frame as it is, and aligned onto the truth as the ATE aligns the trajectory) / "
             "coverage vs the simulator's floor, the median move of the pairs when the final texture is placed on "
-            "the loop closure's corrected trajectory, texture ms per pair by stage:\n\n" + format_texture_table(rows)
+            "the loop closure's corrected trajectory (from where they were last placed: live, at each closed loop), "
+            "texture ms per pair by stage:\n\n" + format_texture_table(rows)
         )
     if any(r.get("world") is not None for r in rows):
         table += "\n\nWorlds (`pf-slam simulate --world N`, not tuned on):\n\n" + _world_layouts(rows)
