@@ -73,6 +73,26 @@ def test_a_set_on_the_map_is_left_alone():
     assert rec.fired == 0
 
 
+def test_a_poor_fit_where_the_wide_window_agrees_is_not_refined(monkeypatch):
+    """A scan that fits badly where the set is right (clutter the map does not hold): the wide
+    window's best cell is the best particle itself, so its refinement, which could only find the
+    local match again, is skipped, and nothing moves."""
+    import pf_slam_nodes.core.recovery as recovery
+
+    predicted, pts, field, cfg = _setup((0.0, 0.0, 0.0))
+    rng = np.random.default_rng(1)
+    clutter = np.column_stack([rng.uniform(0.5, 3.0, 60), rng.uniform(-3.0, 3.0, 60)])
+    pts = np.vstack([pts, clutter])
+    local, scores = correlate(predicted, pts, field, cfg)
+    assert scores.max() < -cfg.recover_min_gain and _err(local, scores)[0] < 0.05
+    calls = []
+    monkeypatch.setattr(recovery, "correlate", lambda *a: calls.append(1) or correlate(*a))
+    rec = Recovery()
+    for n in range(4):
+        assert rec.correct(n, predicted, local, scores, pts, field, cfg)[0] is local
+    assert calls == [] and rec.fired == 0
+
+
 @pytest.mark.parametrize("bad", [{"recover_search_m": -0.1}, {"recover_corrections": 0}, {"recover_min_gain": 0.0}])
 def test_recover_parameters_are_checked(bad):
     with pytest.raises(ValueError, match=next(iter(bad))):

@@ -357,6 +357,17 @@ def _distances(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField, preci
     return _bilinear_at(poses, pts, field, field._dist_flat, False, precision)
 
 
+def usable_points(
+    points_sensor: np.ndarray, cfg: CorrelationConfig, match: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The points :func:`correlate` scores (those within ``cfg.range_max_m``) and those it
+    matches with (of them, the ones ``match`` keeps)."""
+    pts = np.asarray(points_sensor, dtype=np.float64).reshape(-1, 2)
+    near = np.hypot(pts[:, 0], pts[:, 1]) <= cfg.range_max_m
+    matched = pts[near] if match is None else pts[near & np.asarray(match, dtype=bool).reshape(-1)]
+    return pts[near], matched
+
+
 def correlate(
     poses: np.ndarray,
     points_sensor: np.ndarray,
@@ -376,10 +387,7 @@ def correlate(
     particles.
     """
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
-    pts = np.asarray(points_sensor, dtype=np.float64).reshape(-1, 2)
-    near = np.hypot(pts[:, 0], pts[:, 1]) <= cfg.range_max_m
-    matched = pts[near] if match is None else pts[near & np.asarray(match, dtype=bool).reshape(-1)]
-    pts = pts[near]
+    pts, matched = usable_points(points_sensor, cfg, match)
     if matched.shape[0] == 0:
         return poses.copy(), np.zeros(poses.shape[0])
     best, _ = window_search(poses, matched[:: cfg.beam_stride], field, cfg)
