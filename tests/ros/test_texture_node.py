@@ -270,6 +270,12 @@ def test_live_texture_moves_with_a_closed_loop_and_the_final_one_waits(ros_conte
         c = node.counters()
         assert c["loop_replacements"] == 1 and abs(c["replaced"]["shift_median_m"] - np.hypot(1.0, 1.0)) < 1e-3
         moved((2.0, 0.6))
+        # a loop's trajectory delivered after the final one (topics are not ordered) moves nothing
+        pub_loop.publish(cdr.path_bytes(st, np.tile([5.0, 5.0, 0.0], (len(st), 1)), int(st[-1]), "map"))
+        for _ in range(20):
+            ex.spin_once(timeout_sec=0.05)
+        assert node.counters()["loop_replacements"] == 1
+        moved((2.0, 0.6))
 
 
 def test_flooded_pairs_are_skipped_not_queued(ros_context, kaist):

@@ -458,8 +458,9 @@ class TextureNode(Node):
 
     def _on_trajectory(self, raw: bytes, final: bool = True) -> None:
         """The final trajectory, or (``final`` False) a closed loop's during the run; either
-        places every kept pair again once the pairs it covers are textured. A loop's never
-        replaces a final one still waiting."""
+        places every kept pair again once the pairs it covers are textured. A loop's is ignored
+        once a final one has arrived (waiting or placed): the two topics are not ordered against
+        each other, and a late loop's would move the final texture back."""
         try:
             stamps, poses = cdr.path_xy_yaw(raw)
         except ValueError as exc:
@@ -467,7 +468,8 @@ class TextureNode(Node):
             self.get_logger().error(f"{topic}: message dropped: {exc}")
             return
         with self._cond:
-            if final or self._trajectory is None or not self._trajectory[2]:
+            final_seen = self.replaced_final or (self._trajectory is not None and self._trajectory[2])
+            if final or not final_seen:
                 self._trajectory = (stamps.astype(np.float64) / 1e9, poses, final)
             self._cond.notify()
 
