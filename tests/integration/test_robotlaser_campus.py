@@ -18,7 +18,9 @@ import pytest
 pytest.importorskip("rclpy")
 
 from pf_slam_nodes.core.geometry import compose  # noqa: E402
+from pf_slam_nodes.core.grid import from_occupancy  # noqa: E402
 from pf_slam_nodes.core.metrics import ate  # noqa: E402
+from pf_slam_nodes.core.scan import scan_to_points, transform_points  # noqa: E402
 from pf_slam_nodes.graph import run  # noqa: E402
 from pf_slam_nodes.io.convert import convert_carmen  # noqa: E402
 from pf_slam_nodes.io.mapfile import read_map  # noqa: E402
@@ -76,16 +78,14 @@ def test_default_profile_tracks_the_campus_and_the_map_grows_with_its_walls(camp
     assert extent[0] > 180.0, extent
     # walls stay: the scans' ends (every tenth scan, from the run's poses) lie on its occupied cells
     lasers = compose(poses, np.array([MOUNT_X_M, 0.0, 0.0]))
+    grid = from_occupancy(occ, res_m, origin)
     walls = cv2.dilate((occ >= 65).astype(np.uint8), np.ones((3, 3), np.uint8))
     on = total = 0
     for k in range(0, SCANS, 10):
-        r, a = np.asarray(drive.ranges[k]), np.asarray(drive.angles[k])
-        ok = np.isfinite(r) & (r < 20.0)
-        x, y, th = lasers[k]
-        col = np.floor((x + r[ok] * np.cos(th + a[ok]) - origin[0]) / res_m).astype(np.int64)
-        row = np.floor((y + r[ok] * np.sin(th + a[ok]) - origin[1]) / res_m).astype(np.int64)
-        inside = (col >= 0) & (col < occ.shape[1]) & (row >= 0) & (row < occ.shape[0])
+        ends = transform_points(scan_to_points(drive.ranges[k], drive.angles[k], 0.0, 20.0), lasers[k])
+        col, row = grid.world_to_cell(ends).T
+        inside = (col >= 0) & (col < grid.width) & (row >= 0) & (row < grid.height)
         on += int(walls[row[inside], col[inside]].sum())
-        total += int(ok.sum())
+        total += len(ends)
     print(f"scan ends on the map's walls: {on / total:.3f}")
     assert on / total > 0.8  # measured 0.914-0.916 over seeds 0-4
