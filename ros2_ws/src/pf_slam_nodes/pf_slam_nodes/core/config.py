@@ -547,6 +547,15 @@ class LaserConfig(_ConfigBase):
         With a moving mount: a scan of which less than this fraction of the returns survives
         the height gate is *mostly floor*: posed from odometry, neither corrected nor mapped
         with, counted in ``faults.scan_mostly_floor``. 0: off.
+    smooth_beams : int
+        A noisy laser's returns are moved onto the line through them and this many neighbours
+        on each side, where those lie on one surface within the scan's noise
+        (:func:`~pf_slam_nodes.core.scan.smooth_ranges`); the correlator and the mapper see the
+        same smoothed scan. Only scans whose noise, estimated from the scan itself, is at least
+        ``smooth_min_noise_m`` and whose ranges are not rounded to 2 cm or coarser. 0
+        (default): off. The indoor profile's 2: docs/architecture.md, "A noisy laser".
+    smooth_min_noise_m : float
+        laser.smooth_beams: the range noise (std, m) from which a scan is smoothed.
     """
 
     extrinsic: tuple = (0.0,) * 12
@@ -556,8 +565,12 @@ class LaserConfig(_ConfigBase):
     max_height_m: float = 1000.0
     dynamic_frame: str = ""
     min_kept_fraction: float = 0.0
+    smooth_beams: int = 0
+    smooth_min_noise_m: float = 0.015
 
     def __post_init__(self) -> None:
+        _check_int("smooth_beams", self.smooth_beams, 0)
+        _check_nonneg("smooth_min_noise_m", self.smooth_min_noise_m)
         ext = tuple(self.extrinsic)
         if len(ext) != 12:
             raise ValueError(f"extrinsic must have 12 numbers (R row-major, T), got {len(ext)}")

@@ -247,3 +247,97 @@ def planar_scan(
     r2 = np.where(keep, np.hypot(dx, dy), np.nan)
     a2 = np.where(keep, np.arctan2(dy, dx), 0.0)
     return r2, a2, np.array([t[0], t[1], 0.0])
+
+
+def range_noise(ranges: np.ndarray, angles: np.ndarray, max_span_m: float = 0.5) -> float:
+    """The scan's range noise (m, std), from the beams themselves: each middle beam of three
+    consecutive returns against the chord of its two neighbours (its range minus where its ray
+    meets the chord), over triplets that are close (< ``max_span_m``) and not grazing (the
+    chord at most twice the beams' arc); robust (median absolute deviation), divided by
+    sqrt(1.5) (the chord's own noise). NaN with fewer than 20 such triplets."""
+    r = np.asarray(ranges, dtype=np.float64)
+    a = np.asarray(angles, dtype=np.float64)
+    if r.size < 3:
+        return math.nan
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(r) & (r > 0.0)
+        x, y = np.where(ok, r * np.cos(a), 0.0), np.where(ok, r * np.sin(a), 0.0)
+        m = ok[:-2] & ok[1:-1] & ok[2:]
+        dx, dy = x[2:] - x[:-2], y[2:] - y[:-2]
+        span = np.hypot(dx, dy)
+        arc = np.abs(a[2:] - a[:-2]) * np.where(ok[1:-1], r[1:-1], 0.0)
+        ux, uy = np.cos(a[1:-1]), np.sin(a[1:-1])
+        den = ux * dy - uy * dx
+        m &= (span > 1e-9) & (span < max_span_m) & (span < 2.0 * arc) & (np.abs(den) > 1e-12)
+        if m.sum() < 20:
+            return math.nan
+        t = (x[:-2] * dy - y[:-2] * dx)[m] / den[m]
+        res = r[1:-1][m] - t
+    return float(1.4826 * np.median(np.abs(res - np.median(res))) / math.sqrt(1.5))
+
+
+#: lattices a log may round its ranges to (m), coarsest last
+ROUNDING_STEPS_M = (0.02, 0.025, 0.05, 0.1)
+
+
+def range_rounding(ranges: np.ndarray, steps=ROUNDING_STEPS_M, concentration: float = 0.5) -> float:
+    """The coarsest of ``steps`` (m) the scan's ranges are rounded to, whatever the lattice's
+    offset: the ranges' phases ``2 pi r / step`` concentrate (mean resultant length above
+    ``concentration``; about 1 / sqrt(beams) for ranges that are not rounded to it). 0.0: none."""
+    r = np.asarray(ranges, dtype=np.float64)
+    r = r[np.isfinite(r)]
+    if r.size < 10:
+        return 0.0
+    found = 0.0
+    for q in steps:
+        if abs(np.exp(2j * np.pi * r / q).mean()) > concentration:
+            found = q
+    return found
+
+
+def smooth_ranges(
+    ranges: np.ndarray, angles: np.ndarray, half: int, min_noise_m: float = 0.0, gate: float = 2.0
+) -> np.ndarray:
+    """Ranges with each return moved onto the line fitted (total least squares) to it and its
+    ``half`` neighbours on each side, where those ``2 half + 1`` returns lie on one line within
+    the scan's own noise: RMS distance to the line at most ``gate`` times :func:`range_noise`,
+    the beam not grazing it (incidence < 75 deg) and the move at most 3 noise std. Elsewhere
+    (edges, corners, clutter, no returns) the range is unchanged.
+
+    The scan is returned unchanged when ``half`` is 0, when its noise is below ``min_noise_m``
+    (a precise laser loses more at corners than it gains), or when its ranges are rounded to a
+    lattice of 2 cm or coarser (:func:`range_rounding`): the chords then hold the
+    staircase of the rounding, not independent noise (measured: three real logs rounded to
+    2.5 cm and simulated worlds rounded to 5 cm map worse smoothed). Vectorised over beams."""
+    r = np.asarray(ranges, dtype=np.float64)
+    if half <= 0 or r.size < 2 * half + 1:
+        return r
+    a = np.asarray(angles, dtype=np.float64)
+    sigma = range_noise(r, a)
+    if not math.isfinite(sigma) or sigma <= 0.0 or sigma < min_noise_m or range_rounding(r) > 0.0:
+        return r
+    w = 2 * half + 1
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(r) & (r > 0.0)
+        x, y = np.where(ok, r * np.cos(a), 0.0), np.where(ok, r * np.sin(a), 0.0)
+        view = np.lib.stride_tricks.sliding_window_view
+        okw = view(ok, w).all(axis=1)
+        xw, yw = view(x, w), view(y, w)
+        cx, cy = xw.mean(axis=1), yw.mean(axis=1)
+        ex, ey = xw - cx[:, None], yw - cy[:, None]
+        sxx, syy, sxy = (ex * ex).mean(axis=1), (ey * ey).mean(axis=1), (ex * ey).mean(axis=1)
+        # the line's direction: the principal axis; its normal n
+        phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+        nx, ny = -np.sin(phi), np.cos(phi)
+        resid = ex * nx[:, None] + ey * ny[:, None]
+        rms = np.sqrt((resid * resid).mean(axis=1))
+        c = a[half : r.size - half]
+        ux, uy = np.cos(c), np.sin(c)
+        dot = ux * nx + uy * ny
+        t = (cx * nx + cy * ny) / np.where(np.abs(dot) > 1e-12, dot, np.nan)
+        rc = r[half : r.size - half]
+        use = okw & (rms <= gate * sigma) & (np.abs(dot) > math.cos(math.radians(75.0)))
+        use &= np.abs(t - rc) <= 3.0 * sigma
+    out = r.copy()
+    out[half : r.size - half] = np.where(use, t, rc)
+    return out

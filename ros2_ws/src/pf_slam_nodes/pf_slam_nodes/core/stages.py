@@ -44,7 +44,15 @@ from .motion import sample_odometry_motion
 from .mount import mounted_scan
 from .odometry import OdomScaleEstimator
 from .recovery import Recovery
-from .scan import planar_scan, scan_to_points, shadow_beams, sparse_scan_range, transform_points, valid_beams
+from .scan import (
+    planar_scan,
+    scan_to_points,
+    shadow_beams,
+    smooth_ranges,
+    sparse_scan_range,
+    transform_points,
+    valid_beams,
+)
 from .scanpair import ScalePairs
 
 MOTION_STREAM = 1
@@ -446,8 +454,12 @@ def scan_in_base(
     """:func:`planar_scan` with the configured mount, or with ``extrinsic`` (12,), this scan's
     mount on a moving mount (core/mount.py)."""
     if extrinsic is None:
-        return planar_scan(ranges, angles, laser, planar_offset, range_min, range_max)
-    return mounted_scan(ranges, angles, laser, extrinsic, range_min, range_max)
+        r, a, off = planar_scan(ranges, angles, laser, planar_offset, range_min, range_max)
+    else:
+        r, a, off = mounted_scan(ranges, angles, laser, extrinsic, range_min, range_max)
+    if laser.smooth_beams:
+        r = smooth_ranges(r, a, laser.smooth_beams, laser.smooth_min_noise_m)
+    return r, a, off
 
 
 def scaled_increment(particles: np.ndarray, delta: np.ndarray, scale: float) -> np.ndarray:
