@@ -109,6 +109,9 @@ def test_intel_segment_against_relations_and_reference_map(data_dir, tmp_path, r
     assert res.summary["scans_processed"] == 300 and res.summary["scans_dropped"] == 0
     # the indoor profile's recovery (correlation.recover_search_m) is on; nothing slides off here
     assert res.summary["recoveries"] == {"count": 0, "last": None}
+    # a SICK LMS at about 6 mm: the indoor profile's smoothing (laser.smooth_beams) leaves it alone
+    noise = res.summary["laser_noise"]
+    assert noise["noise_m_median"] < 0.01 and noise["scans"]["smoothed"] == 0, noise
 
     # Kümmerle relations whose both stamps fall in the segment
     t_est, p_est = read_trajectory(tmp_path / "out" / "trajectory.tum")

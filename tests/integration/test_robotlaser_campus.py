@@ -66,6 +66,10 @@ def test_default_profile_tracks_the_campus_and_the_map_grows_with_its_walls(camp
     assert s["profile"]["name"] == "indoor"
     assert s["scans_processed"] == SCANS and s["scans_dropped"] == 0
     assert "base_link -> laser: x 0.25 y 0.00" in s["lidar_mount"]["used"]
+    # a noisy laser (about 2.5 cm, ranges in cm): the indoor profile smooths most of its scans
+    noise = s["laser_noise"]
+    assert 0.015 < noise["noise_m_median"] < 0.05, noise
+    assert noise["scans"]["smoothed"] > sum(noise["scans"].values()) / 2 and noise["scans"]["rounded"] == 0, noise
     _, poses = read_trajectory(out / "trajectory.tum")
     err = ate(poses, truth)["rmse"]
     dead_reckoning = ate(drive.odom[:SCANS], drive.truth[:SCANS])["rmse"]

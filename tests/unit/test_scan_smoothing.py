@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from pf_slam_nodes.core.config import LaserConfig
-from pf_slam_nodes.core.scan import range_noise, range_rounding, smooth_ranges
+from pf_slam_nodes.core.scan import NoiseTally, range_noise, range_rounding, smooth_ranges, smooth_scan
 from pf_slam_nodes.core.stages import scan_in_base
 
 ANGLES = np.radians(np.arange(-90.0, 90.5, 1.0))  # 181 beams, 1 deg: a SICK LMS
@@ -93,3 +93,16 @@ def test_the_parameters_are_checked():
         LaserConfig(smooth_beams=-1)
     with pytest.raises(ValueError, match="smooth_min_noise_m"):
         LaserConfig(smooth_min_noise_m=-0.01)
+
+
+def test_the_tally_says_what_was_found():
+    rng = np.random.default_rng(6)
+    truth = room(ANGLES)
+    tally = NoiseTally()
+    noisy = truth + rng.normal(0.0, 0.03, truth.shape)
+    for r in (noisy, truth + rng.normal(0.0, 0.006, truth.shape), np.round(noisy / 0.05) * 0.05, np.full(5, 2.0)):
+        _, noise, verdict = smooth_scan(r, ANGLES[: r.size], 2, 0.015)
+        tally.add(noise, verdict)
+    status = tally.status()
+    assert status["scans"] == {"smoothed": 1, "precise": 1, "rounded": 1, "unknown": 1}
+    assert 0.006 < status["noise_m_median"] < 0.04

@@ -298,7 +298,14 @@ def range_rounding(ranges: np.ndarray, steps=ROUNDING_STEPS_M, concentration: fl
 def smooth_ranges(
     ranges: np.ndarray, angles: np.ndarray, half: int, min_noise_m: float = 0.0, gate: float = 2.0
 ) -> np.ndarray:
-    """Ranges with each return moved onto the line fitted (total least squares) to it and its
+    """:func:`smooth_scan`'s ranges."""
+    return smooth_scan(ranges, angles, half, min_noise_m, gate)[0]
+
+
+def smooth_scan(
+    ranges: np.ndarray, angles: np.ndarray, half: int, min_noise_m: float = 0.0, gate: float = 2.0
+) -> tuple[np.ndarray, float, str]:
+    """``(ranges, noise, verdict)``: the ranges with each return moved onto the line fitted (total least squares) to it and its
     ``half`` neighbours on each side, where those ``2 half + 1`` returns lie on one line within
     the scan's own noise: RMS distance to the line at most ``gate`` times :func:`range_noise`,
     the beam not grazing it (incidence < 75 deg) and the move at most 3 noise std. Elsewhere
@@ -308,14 +315,21 @@ def smooth_ranges(
     (a precise laser loses more at corners than it gains), or when its ranges are rounded to a
     lattice of 2 cm or coarser (:func:`range_rounding`): the chords then hold the
     staircase of the rounding, not independent noise (measured: three real logs rounded to
-    2.5 cm and simulated worlds rounded to 5 cm map worse smoothed). Vectorised over beams."""
+    2.5 cm and simulated worlds rounded to 5 cm map worse smoothed). ``noise``: the scan's
+    :func:`range_noise` (NaN where not estimated); ``verdict``: ``smoothed``, ``precise`` (below
+    ``min_noise_m``), ``rounded``, or ``unknown`` (too few beams to tell, or ``half`` 0).
+    Vectorised over beams."""
     r = np.asarray(ranges, dtype=np.float64)
     if half <= 0 or r.size < 2 * half + 1:
-        return r
+        return r, math.nan, "unknown"
     a = np.asarray(angles, dtype=np.float64)
     sigma = range_noise(r, a)
-    if not math.isfinite(sigma) or sigma <= 0.0 or sigma < min_noise_m or range_rounding(r) > 0.0:
-        return r
+    if not math.isfinite(sigma):
+        return r, sigma, "unknown"
+    if sigma < min_noise_m or sigma <= 0.0:
+        return r, sigma, "precise"
+    if range_rounding(r) > 0.0:
+        return r, sigma, "rounded"
     w = 2 * half + 1
     with np.errstate(invalid="ignore"):
         ok = np.isfinite(r) & (r > 0.0)
@@ -340,4 +354,22 @@ def smooth_ranges(
         use &= np.abs(t - rc) <= 3.0 * sigma
     out = r.copy()
     out[half : r.size - half] = np.where(use, t, rc)
-    return out
+    return out, sigma, "smoothed"
+
+
+class NoiseTally:
+    """What :func:`smooth_scan` found over a run: scans per verdict and the median noise
+    (summary.json ``laser_noise``)."""
+
+    def __init__(self) -> None:
+        self.counts = {"smoothed": 0, "precise": 0, "rounded": 0, "unknown": 0}
+        self.noise: list[float] = []
+
+    def add(self, noise: float, verdict: str) -> None:
+        self.counts[verdict] += 1
+        if math.isfinite(noise):
+            self.noise.append(noise)
+
+    def status(self) -> dict:
+        med = float(np.median(self.noise)) if self.noise else None
+        return {"scans": self.counts, "noise_m_median": None if med is None else round(med, 4)}

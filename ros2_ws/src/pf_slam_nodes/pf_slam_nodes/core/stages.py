@@ -45,10 +45,11 @@ from .mount import mounted_scan
 from .odometry import OdomScaleEstimator
 from .recovery import Recovery
 from .scan import (
+    NoiseTally,
     planar_scan,
     scan_to_points,
     shadow_beams,
-    smooth_ranges,
+    smooth_scan,
     sparse_scan_range,
     transform_points,
     valid_beams,
@@ -192,6 +193,7 @@ class CorrectionStage:
         self.last_init: str | None = None  # "global" or "initial pose"
         self.filter_cfg = filter_cfg
         self.laser_cfg = laser_cfg or LaserConfig()
+        self.noise = NoiseTally() if self.laser_cfg.smooth_beams else None  # laser.smooth_beams: what it found
         self.grid_cfg = grid_cfg
         self.corr_cfg = corr_cfg
         self.resample_cfg = resample_cfg
@@ -342,7 +344,7 @@ class CorrectionStage:
             self._move = None
         log_w = np.asarray(log_weights, dtype=np.float64)
         ranges, angles, offset = scan_in_base(
-            ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset, range_min, range_max, extrinsic
+            ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset, range_min, range_max, extrinsic, self.noise
         )
         cut = sparse_scan_range(ranges, self.corr_cfg.range_max_m, range_max, self.grid_cfg.min_return_fraction)
         lo, hi = max(range_min, 1e-6), min(range_max, cut)
@@ -450,15 +452,19 @@ def scan_in_base(
     range_min: float,
     range_max: float,
     extrinsic: np.ndarray | None = None,
+    tally: NoiseTally | None = None,
 ):
     """:func:`planar_scan` with the configured mount, or with ``extrinsic`` (12,), this scan's
-    mount on a moving mount (core/mount.py)."""
+    mount on a moving mount (core/mount.py); smoothed where it is noisy (``laser.smooth_beams``,
+    :func:`smooth_scan`; counted in ``tally``)."""
     if extrinsic is None:
         r, a, off = planar_scan(ranges, angles, laser, planar_offset, range_min, range_max)
     else:
         r, a, off = mounted_scan(ranges, angles, laser, extrinsic, range_min, range_max)
     if laser.smooth_beams:
-        r = smooth_ranges(r, a, laser.smooth_beams, laser.smooth_min_noise_m)
+        r, noise, verdict = smooth_scan(r, a, laser.smooth_beams, laser.smooth_min_noise_m)
+        if tally is not None:
+            tally.add(noise, verdict)
     return r, a, off
 
 

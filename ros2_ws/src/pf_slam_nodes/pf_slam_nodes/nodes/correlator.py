@@ -124,6 +124,8 @@ class Correlator(Node):
             out["odom_scale"] = scale
         if (rec := self.stage.recovery) is not None:
             out["recoveries"] = {"count": rec.fired, "last": rec.last}
+        if (noise := self.stage.noise) is not None:
+            out["laser_noise"] = noise.status()
         return out
 
     def _on_mount(self, decision: dict) -> None:

@@ -184,6 +184,7 @@ def build_summary(plan: RunPlan, dom: RosDomain, done: GraphOutcome, extra: dict
         **({"odom_scale": sc} if (sc := rec.node_status.get("correlator", {}).get("odom_scale")) else {}),
         **({"localization": loc} if (loc := rec.node_status.get("correlator", {}).get("localization")) else {}),
         **({"recoveries": rc} if (rc := rec.node_status.get("correlator", {}).get("recoveries")) else {}),
+        **({"laser_noise": ln} if (ln := rec.node_status.get("correlator", {}).get("laser_noise")) else {}),
         **({"loops": lp} if (lp := rec.node_status.get("mapper", {}).get("loops")) else {}),
         "complete": stopped_by is None,
         **({} if stopped_by is None else {"stopped_by": stopped_by}),
