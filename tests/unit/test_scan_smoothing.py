@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from pf_slam_nodes.core.config import LaserConfig
-from pf_slam_nodes.core.scan import NoiseTally, range_noise, range_rounding, smooth_ranges, smooth_scan
+from pf_slam_nodes.core.scan import NoiseTally, range_noise, range_rounding, smooth_scan
 from pf_slam_nodes.core.stages import scan_in_base
 
 ANGLES = np.radians(np.arange(-90.0, 90.5, 1.0))  # 181 beams, 1 deg: a SICK LMS
@@ -43,7 +43,7 @@ def test_a_noisy_scan_comes_closer_to_its_walls_and_its_corners_stay():
     corner = int(np.argmin(np.abs(ANGLES - math.atan2(3.0, 6.0))))  # the beam at the corner (6, 3)
     for _ in range(10):
         noisy = truth + rng.normal(0.0, 0.03, truth.shape)
-        smooth = smooth_ranges(noisy, ANGLES, 2, 0.015)
+        smooth = smooth_scan(noisy, ANGLES, 2, 0.015)[0]
         before.append(noisy - truth)
         after.append(smooth - truth)
         assert abs(smooth[corner] - noisy[corner]) <= 3 * range_noise(noisy, ANGLES) + 1e-9  # within the noise
@@ -57,7 +57,7 @@ def test_no_return_stays_no_return_and_gaps_are_not_bridged():
     noisy = room(ANGLES) + rng.normal(0.0, 0.03, ANGLES.shape)
     noisy[60:70] = np.inf
     noisy[100] = np.nan
-    smooth = smooth_ranges(noisy, ANGLES, 2, 0.015)
+    smooth = smooth_scan(noisy, ANGLES, 2, 0.015)[0]
     assert np.all(np.isinf(smooth[60:70])) and np.isnan(smooth[100])
     # the beams next to a gap have no full window of neighbours: unchanged
     for k in (58, 59, 70, 71, 98, 99, 101, 102):
@@ -68,14 +68,14 @@ def test_precise_or_rounded_scans_are_left_as_they_are():
     rng = np.random.default_rng(4)
     truth = room(ANGLES)
     precise = truth + rng.normal(0.0, 0.006, truth.shape)  # a SICK at 6 mm: below 1.5 cm
-    assert np.array_equal(smooth_ranges(precise, ANGLES, 2, 0.015), precise)
+    assert np.array_equal(smooth_scan(precise, ANGLES, 2, 0.015)[0], precise)
     noisy = truth + rng.normal(0.0, 0.03, truth.shape)
     rounded = np.round((noisy - 0.005) / 0.025) * 0.025 + 0.005  # a log that stored 2.5 cm steps
     assert range_rounding(rounded) == 0.025
-    assert np.array_equal(smooth_ranges(rounded, ANGLES, 2, 0.015), rounded)
+    assert np.array_equal(smooth_scan(rounded, ANGLES, 2, 0.015)[0], rounded)
     assert range_rounding(np.round(noisy, 2)) == 0.0  # centimetres: as sensors report them
     assert range_rounding(noisy) == 0.0
-    assert np.array_equal(smooth_ranges(noisy, ANGLES, 0, 0.015), noisy)  # off
+    assert np.array_equal(smooth_scan(noisy, ANGLES, 0, 0.015)[0], noisy)  # off
 
 
 def test_the_correlator_and_the_mapper_see_the_same_smoothed_scan():
@@ -85,7 +85,7 @@ def test_the_correlator_and_the_mapper_see_the_same_smoothed_scan():
     r0, _, _ = scan_in_base(noisy, ANGLES, LaserConfig(), np.zeros(3), 0.0, 80.0)
     r2, a2, _ = scan_in_base(noisy, ANGLES, LaserConfig(smooth_beams=2), np.zeros(3), 0.0, 80.0)
     assert np.array_equal(r0, noisy)
-    assert np.array_equal(r2, smooth_ranges(noisy, a2, 2, 0.015)) and not np.array_equal(r2, noisy)
+    assert np.array_equal(r2, smooth_scan(noisy, a2, 2, 0.015)[0]) and not np.array_equal(r2, noisy)
 
 
 def test_the_parameters_are_checked():

@@ -550,7 +550,7 @@ class LaserConfig(_ConfigBase):
     smooth_beams : int
         A noisy laser's returns are moved onto the line through them and this many neighbours
         on each side, where those lie on one surface within the scan's noise
-        (:func:`~pf_slam_nodes.core.scan.smooth_ranges`); the correlator and the mapper see the
+        (:func:`~pf_slam_nodes.core.scan.smooth_scan`); the correlator and the mapper see the
         same smoothed scan. Only scans whose noise, estimated from the scan itself, is at least
         ``smooth_min_noise_m`` and whose ranges are not rounded to 2 cm or coarser. 0
         (default): off. The indoor profile's 2: docs/architecture.md, "A noisy laser".

@@ -295,13 +295,6 @@ def range_rounding(ranges: np.ndarray, steps=ROUNDING_STEPS_M, concentration: fl
     return found
 
 
-def smooth_ranges(
-    ranges: np.ndarray, angles: np.ndarray, half: int, min_noise_m: float = 0.0, gate: float = 2.0
-) -> np.ndarray:
-    """:func:`smooth_scan`'s ranges."""
-    return smooth_scan(ranges, angles, half, min_noise_m, gate)[0]
-
-
 def smooth_scan(
     ranges: np.ndarray, angles: np.ndarray, half: int, min_noise_m: float = 0.0, gate: float = 2.0
 ) -> tuple[np.ndarray, float, str]:
