@@ -22,6 +22,11 @@ PERIOD_S = 0.5
 START_S = 1000.0
 
 
+def robot_poses(laser_poses: np.ndarray, mount_x_m: float) -> np.ndarray:
+    """The robot's poses ``(K, 3)`` of a laser's, the laser ``mount_x_m`` ahead of the robot."""
+    return compose(np.asarray(laser_poses, dtype=np.float64), np.array([-mount_x_m, 0.0, 0.0]))
+
+
 def write_robotlaser1_log(
     path: str | os.PathLike,
     ranges: list,
@@ -38,7 +43,7 @@ def write_robotlaser1_log(
     ``no_return_m``. Returns the lines' stamps (s)."""
     stamps = START_S + PERIOD_S * np.arange(len(ranges))
     odom = np.asarray(odom, dtype=np.float64)
-    robot = compose(odom, np.array([-mount_x_m, 0.0, 0.0]))
+    robot = robot_poses(odom, mount_x_m)
     with open(path, "w") as f:
         f.write("# ROBOTLASER1 only: odometry inside the laser lines\n")
         for r, laser, base, t in zip(ranges, odom, robot, stamps):
@@ -72,4 +77,4 @@ def building_as_robotlaser1(
     inc = float(drive.angles[0][1] - drive.angles[0][0])
     first = float(drive.angles[0][0])
     stamps = write_robotlaser1_log(out, drive.ranges[:k], first, inc, drive.odom[:k], mount_x_m=mount_x_m)
-    return stamps, compose(drive.truth[:k], np.array([-mount_x_m, 0.0, 0.0]))
+    return stamps, robot_poses(drive.truth[:k], mount_x_m)
