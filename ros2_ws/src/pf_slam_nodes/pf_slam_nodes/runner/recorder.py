@@ -44,6 +44,7 @@ class _Recorder:
         self.scans_total = scans_total
         self.bag_duration_s = bag_duration_s
         self.snapshot_due = SnapshotCadence(snapshot_every)  # every N scans or N s of bag time
+        self._snapshot_waits = False  # one came due before the first map: written when it comes
         self._tty = sys.stderr.isatty()
         self.progress = progress
         self.stamps: list[int] = []
@@ -126,7 +127,11 @@ class _Recorder:
         self.stamps.append(stamp)
         self.poses.append(pose)
         k = len(self.poses)
-        if self.snapshot_due(k, stamp) and self.map_msg is not None:
+        # the map comes on the mapper's wall-clock period: a snapshot due before the first one
+        # (a short bag in --rate max) is written with the first pose after it, not lost
+        self._snapshot_waits |= self.snapshot_due(k, stamp)
+        if self._snapshot_waits and self.map_msg is not None:
+            self._snapshot_waits = False
             self.snapshot(f"scan_{k:06d}.png")
         self.print_progress()
 
