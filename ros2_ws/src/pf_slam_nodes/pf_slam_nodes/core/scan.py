@@ -259,9 +259,19 @@ def range_noise(ranges: np.ndarray, angles: np.ndarray, max_span_m: float = 0.5)
     a = np.asarray(angles, dtype=np.float64)
     if r.size < 3:
         return math.nan
+    return _chord_noise(r, a, *_returns_xy(r, a), max_span_m)
+
+
+def _returns_xy(r: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(ok, x, y)``: the beams with a return (finite, > 0) and their end points (0 elsewhere)."""
     with np.errstate(invalid="ignore"):
         ok = np.isfinite(r) & (r > 0.0)
-        x, y = np.where(ok, r * np.cos(a), 0.0), np.where(ok, r * np.sin(a), 0.0)
+        return ok, np.where(ok, r * np.cos(a), 0.0), np.where(ok, r * np.sin(a), 0.0)
+
+
+def _chord_noise(r, a, ok, x, y, max_span_m: float = 0.5) -> float:
+    """:func:`range_noise` of a scan whose :func:`_returns_xy` are computed (``r.size >= 3``)."""
+    with np.errstate(invalid="ignore"):
         m = ok[:-2] & ok[1:-1] & ok[2:]
         dx, dy = x[2:] - x[:-2], y[2:] - y[:-2]
         span = np.hypot(dx, dy)
@@ -316,7 +326,8 @@ def smooth_scan(
     if half <= 0 or r.size < 2 * half + 1:
         return r, math.nan, "unknown"
     a = np.asarray(angles, dtype=np.float64)
-    sigma = range_noise(r, a)
+    ok, x, y = _returns_xy(r, a)  # shared by the noise estimate and the line fits
+    sigma = _chord_noise(r, a, ok, x, y)
     if not math.isfinite(sigma):
         return r, sigma, "unknown"
     if sigma < min_noise_m or sigma <= 0.0:
@@ -325,8 +336,6 @@ def smooth_scan(
         return r, sigma, "rounded"
     w = 2 * half + 1
     with np.errstate(invalid="ignore"):
-        ok = np.isfinite(r) & (r > 0.0)
-        x, y = np.where(ok, r * np.cos(a), 0.0), np.where(ok, r * np.sin(a), 0.0)
         view = np.lib.stride_tricks.sliding_window_view
         okw = view(ok, w).all(axis=1)
         xw, yw = view(x, w), view(y, w)
