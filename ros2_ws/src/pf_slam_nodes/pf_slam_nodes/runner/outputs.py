@@ -135,6 +135,17 @@ def odom_scale_line(sc: dict) -> str:
     )
 
 
+#: the nodes' status entries summary.json carries when a node reported them: (node, key), in order
+NODE_STATUS_KEYS = (
+    ("predictor", "gyro"),
+    ("correlator", "odom_scale"),
+    ("correlator", "localization"),
+    ("correlator", "recoveries"),
+    ("correlator", "laser_noise"),
+    ("mapper", "loops"),
+)
+
+
 def build_summary(plan: RunPlan, dom: RosDomain, done: GraphOutcome, extra: dict) -> dict:
     """summary.json: the run's counts, timings, faults, inputs, profile, mount and domain;
     `extra`: what _write_outputs added."""
@@ -180,12 +191,7 @@ def build_summary(plan: RunPlan, dom: RosDomain, done: GraphOutcome, extra: dict
         },
         "odom_sync": checks["odom_sync"],
         **({"timestamps": checks["timestamps"]} if checks["timestamps"] else {}),
-        **({"gyro": gyro} if (gyro := rec.node_status.get("predictor", {}).get("gyro")) else {}),
-        **({"odom_scale": sc} if (sc := rec.node_status.get("correlator", {}).get("odom_scale")) else {}),
-        **({"localization": loc} if (loc := rec.node_status.get("correlator", {}).get("localization")) else {}),
-        **({"recoveries": rc} if (rc := rec.node_status.get("correlator", {}).get("recoveries")) else {}),
-        **({"laser_noise": ln} if (ln := rec.node_status.get("correlator", {}).get("laser_noise")) else {}),
-        **({"loops": lp} if (lp := rec.node_status.get("mapper", {}).get("loops")) else {}),
+        **{key: v for node, key in NODE_STATUS_KEYS if (v := rec.node_status.get(node, {}).get(key))},
         "complete": stopped_by is None,
         **({} if stopped_by is None else {"stopped_by": stopped_by}),
         **extra,
