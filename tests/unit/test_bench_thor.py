@@ -47,6 +47,12 @@ def test_texture_error_in_the_maps_geometry(tmp_path):
     write_texture_pngs(run, tex2, tex2.any(axis=2))
     err2 = thor.texture_error(run, sim)
     assert err2["texture_error"] == pytest.approx(3 * 320 / 3 / w)  # 3 of 25 columns off by (160, 0, 160)
+    # aligned as the ATE would align a trajectory 0.3 m east of the truth: nothing is off
+    err3 = thor.texture_error(run, sim, (0.0, np.array([-0.3, 0.0])))
+    assert err3["texture_error"] == err2["texture_error"] and err3["texture_error_aligned"] == pytest.approx(0.0)
+    # and a rotation about the map origin moves the stripes: the aligned error is no longer 0
+    err4 = thor.texture_error(run, sim, (np.radians(20.0), np.array([-0.3, 0.0])))
+    assert err4["texture_error_aligned"] > 1.0
 
 
 def test_table_and_targets():
@@ -64,6 +70,7 @@ def test_table_and_targets():
         "map_precision": 0.95,
         "map_recall": 0.85,
         "texture_error": 9.5,
+        "texture_error_aligned": 7.25,
         "texture_cells": 4000,
         "rgbd_pairs": 30,
         "rgbd_received": 30,
@@ -71,9 +78,10 @@ def test_table_and_targets():
         "wall_s": 5.0,
         "rtf": 12.0,
     }
-    bad = dict(row, seed=1, ate_m=0.2, texture_error=20.0, rtf=4.0)
+    bad = dict(row, seed=1, ate_m=0.2, texture_error=20.0, texture_error_aligned=16.0, rtf=4.0)
     table = thor.format_table([row, bad])
-    assert "| 0 | 1 | 60 | 100 | 2400 (120, 3) | 0.050 | 0.400 | 0.900 (0.95 / 0.85) | 9.5 |" in table
+    assert "| 0 | 1 | 60 | 100 | 2400 (120, 3) | 0.050 | 0.400 | 0.900 (0.95 / 0.85) | 9.5 | 7.2 |" in table
     line = thor.targets_line([row, bad])
     assert "2 runs (2 worlds x 1 filter seeds)" in line
     assert "<= 0.1 m in 1 of 2" in line and "<= 15 in 1 of 2" in line and ">= 10x in 1 of 2" in line
+    assert "aligned as the ATE: mean 11.6, worst 16.0, <= 15 in 1 of 2" in line
