@@ -157,3 +157,15 @@ def test_no_partner_tells_separate_odometry_from_a_gap():
     _line(gap, [0, 100])
     gap.lookup(0)
     assert gap.no_partner([10, 20, 30, 40, 50, 60]) is None  # nothing arrived between them
+
+
+def test_run_says_what_the_standstills_calibrated_or_warns_that_none_did():
+    from pf_slam_nodes.runner.outputs import gyro_line
+
+    cal = _drive_with_biased_gyro(True, 100)[0]
+    line = gyro_line({"bias_rad_s": cal.gyro_bias_rad_s, "rest_s": cal.rest_s})
+    assert line.startswith("gyro yaw bias: +500.0 µrad/s (+103.13 deg/h), calibrated over 1.0 s of standstill")
+    never = _drive_with_biased_gyro(True, 10)[0]  # 0.1 s at rest: shorter than rest_min_s
+    assert never.rest_s == 0.0
+    warn = gyro_line({"bias_rad_s": never.gyro_bias_rad_s, "rest_s": never.rest_s})
+    assert warn.startswith("warning: the gyro's yaw bias was never calibrated") and "wheels.rest_min_s" in warn

@@ -69,6 +69,7 @@ from .runner.outputs import (  # noqa: F401
     _write_outputs,
     _write_texture,
     build_summary,
+    gyro_line,
     odom_scale_line,
 )
 from .runner.params import (  # noqa: F401
@@ -405,6 +406,8 @@ def run_cli(args: Any, log: Callable[[str], None] = print) -> int:
             f"loop closure: {lc['closed']} loops closed over {lc['keyframes']} keyframes ({lc['rejected']} matches "
             f"refused, {lc['dropped']} dropped by the graph), map re-rendered {lc['map_renders']}x{frames}"
         )
+    if g := s.get("gyro"):
+        log(gyro_line(g))
     if sc := s.get("odom_scale"):
         log(odom_scale_line(sc))
     if s["scans_dropped"]:
