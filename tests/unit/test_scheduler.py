@@ -37,12 +37,12 @@ def _events(order: str, scans, encoders, gyro):
     return [(kind, x) for _, _, kind, x in sorted(ev, key=lambda e: (e[0], e[1]))]
 
 
-def _run(events, delay: int = 0, wheels=None, bad=()):
+def _run(events, delay: int = 0, wheels=None, bad=(), motion=None):
     """Feed the events; each correction is answered after `delay` more events. Returns the
     poses (stamp, pose) in publication order and the scheduler."""
     s = sch.PredictorScheduler(
         cfg.FilterConfig(num_particles=5, min_travel_m=0.5),
-        cfg.OdometryMotionConfig(),
+        motion or cfg.OdometryMotionConfig(),
         "encoders",
         "interpolate",
         wheels or cfg.WheelsConfig(left_diameter_m=0.5, right_diameter_m=0.5, base_m=0.6),
@@ -157,3 +157,51 @@ def test_wheels_config_validates_and_names_the_field():
             cfg.WheelsConfig(**bad)
     with pytest.raises(ValueError, match="unknown"):
         cfg.WheelsConfig.from_dict({"wheel_base": 1.0})
+
+
+def _drive_with_rest(n_scans: int = 60, rest_s: float = 1.5, noise: float = 2e-6, bias: float = 3e-7):
+    """As _drive, but standing still for ``rest_s`` first, with a gyro that has a bias and white
+    noise (``noise`` rad per 1 kHz sample)."""
+    scans, encoders, _ = _drive(n_scans)
+    d, yaw_rate, v = 0.5, 0.2, 2.0
+    moving = [max(t / S - rest_s, 0.0) for t, _ in encoders]  # seconds of driving so far
+    encoders = [(t, np.array([v * m / (d / 2), v * m / (d / 2) + 0.1 * m])) for (t, _), m in zip(encoders, moving)]
+    t_gyro = np.arange(1, len(encoders) * 10 + 10) * (S // 1000)
+    rng = np.random.default_rng(7)
+    dy = np.where(t_gyro / S > rest_s, yaw_rate / 1000, 0.0) + bias + noise * rng.standard_normal(len(t_gyro))
+    gyro = [(t_gyro[i : i + 10], dy[i : i + 10]) for i in range(0, len(t_gyro), 10)]
+    return scans, encoders, gyro
+
+
+def test_heading_noise_from_the_gyros_rest_calibration():
+    """motion.gyro_noise_scale: the rest measures the gyro's noise (q = 2e-6^2 * 1000 rad^2/s);
+    the heading noise of the predictions after it follows from that, from the stamps only (the
+    streams' arrival order does not change a pose), and differs from the profile's."""
+    drive = _drive_with_rest()
+    motion = cfg.OdometryMotionConfig(gyro_noise_scale=2.0)
+    poses, s = _run(_events("stamp", *drive), motion=motion)
+    assert len(s._gyro_noise) == 1
+    t_cal, q, bias_std = s._gyro_noise[0]
+    assert 1.5 * S <= t_cal <= 1.52 * S  # the first moving wheel step ends the rest
+    assert q == pytest.approx(2e-6**2 * 1000, rel=0.2) and bias_std == pytest.approx(np.sqrt(q / 1.5), rel=0.05)
+    assert s.wheels.gyro_bias_rad_s == pytest.approx(3e-4, abs=3 * bias_std)
+    for order in ("gyro_late", "bursts"):
+        other, _ = _run(_events(order, *drive), motion=motion)
+        assert np.array_equal(np.array([p for _, p in other]), np.array([p for _, p in poses]))
+    off, s_off = _run(_events("stamp", *drive))
+    assert [t for t, _ in off] == [t for t, _ in poses]
+    assert not np.array_equal(np.array([p for _, p in off]), np.array([p for _, p in poses]))
+    assert s_off._heading_sigma(drive[0][-1]) is None  # off by default
+    # before the rest has ended no calibration applies; after it, scale * sqrt(q dt + (s_b dt)^2)
+    assert s._heading_sigma(int(1.4 * S)) is None
+    dt = (drive[0][-1] - s._t_update) / S
+    assert s._heading_sigma(drive[0][-1]) == pytest.approx(2.0 * np.sqrt(q * dt + (bias_std * dt) ** 2))
+
+
+def test_sample_odometry_motion_takes_a_given_heading_noise():
+    from pf_slam_nodes.core.motion import sample_odometry_motion
+
+    rng = np.random.default_rng(3)
+    c = cfg.OdometryMotionConfig(sigma_theta_per_m=0.1, sigma_theta_per_rad=0.5, sigma_theta_min_rad=0.05)
+    out = sample_odometry_motion(np.zeros((20000, 3)), np.array([2.0, 0.0, 0.1]), c, rng, sigma_theta_rad=0.001)
+    assert out[:, 2].std() == pytest.approx(0.5 * 0.1 + 0.001, rel=0.05)  # the turning term stays

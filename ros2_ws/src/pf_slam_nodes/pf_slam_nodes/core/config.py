@@ -45,6 +45,14 @@ class OdometryMotionConfig(_ConfigBase):
         Constant translation noise std added to every prediction (m).
     sigma_theta_min_rad : float
         Constant rotation noise std added to every prediction (rad).
+    gyro_noise_scale : float
+        Wheel encoders with a gyro calibrated at rest (``wheels.gyro_rest_bias``) only: once a
+        standstill has calibrated the gyro, ``sigma_theta_per_m * |t| + sigma_theta_min_rad`` is
+        replaced by this factor times the gyro's own heading uncertainty over the prediction's
+        interval ``dt``, ``sqrt(q dt + (s_b dt)^2)``, both measured at rest: ``q`` the gyro's noise
+        density (rad^2/s, the spread of its increments at rest) and ``s_b`` the bias estimate's std
+        (``sqrt(q / rest time)``). Before any standstill the terms above apply (they must then
+        follow the whole bias). 0 (default): off.
     """
 
     sigma_xy_per_m: float = 0.05
@@ -53,6 +61,7 @@ class OdometryMotionConfig(_ConfigBase):
     sigma_theta_per_rad: float = 0.05
     sigma_xy_min_m: float = 0.005
     sigma_theta_min_rad: float = 0.002
+    gyro_noise_scale: float = 0.0
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):

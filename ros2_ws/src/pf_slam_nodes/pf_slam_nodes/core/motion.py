@@ -17,7 +17,11 @@ from .geometry import _wrap, compose, relative_pose, wrap_angle  # noqa: F401
 
 
 def sample_odometry_motion(
-    poses: np.ndarray, delta: np.ndarray, cfg: OdometryMotionConfig, rng: np.random.Generator
+    poses: np.ndarray,
+    delta: np.ndarray,
+    cfg: OdometryMotionConfig,
+    rng: np.random.Generator,
+    sigma_theta_rad: float | None = None,
 ) -> np.ndarray:
     """Propagate particles by a noisy odometry increment.
 
@@ -32,6 +36,10 @@ def sample_odometry_motion(
         ``(3,)`` odometry increment ``relative_pose(odom_prev, odom_now)``.
     cfg : OdometryMotionConfig
     rng : numpy.random.Generator
+    sigma_theta_rad : float, optional
+        Replaces ``sigma_theta_per_m * |t| + sigma_theta_min_rad`` (the heading's own uncertainty
+        over the increment, e.g. a calibrated gyro's: ``cfg.gyro_noise_scale``); the turning term
+        stays.
 
     Returns
     -------
@@ -44,7 +52,10 @@ def sample_odometry_motion(
     trans = float(np.hypot(delta[0], delta[1]))
     rot = abs(float(wrap_angle(delta[2])))
     s_xy = cfg.sigma_xy_per_m * trans + cfg.sigma_xy_per_rad * rot + cfg.sigma_xy_min_m
-    s_th = cfg.sigma_theta_per_m * trans + cfg.sigma_theta_per_rad * rot + cfg.sigma_theta_min_rad
+    if sigma_theta_rad is None:
+        s_th = cfg.sigma_theta_per_m * trans + cfg.sigma_theta_per_rad * rot + cfg.sigma_theta_min_rad
+    else:
+        s_th = cfg.sigma_theta_per_rad * rot + float(sigma_theta_rad)
     noise = rng.standard_normal((n, 3)) * np.array([s_xy, s_xy, s_th])
     return compose(poses, delta[None, :] + noise)
 

@@ -287,7 +287,9 @@ class WheelOdometryIntegrator:
     integrated over those steps is its bias; ``gyro_bias_rad_s`` is the mean over all rest time so
     far, and each moving step's gyro yaw is corrected by ``gyro_bias_rad_s * dt_s``. Causal (only
     rest seen before a step corrects it); needs ``dt_s``. Shorter rests (a wheel that happens not to
-    tick in one step while creeping) only get the zero yaw.
+    tick in one step while creeping) only get the zero yaw. The same rest steps measure the gyro's
+    noise (``gyro_noise``: the spread of its increments about the bias, and so the bias
+    estimate's own std).
     """
 
     def __init__(
@@ -316,8 +318,11 @@ class WheelOdometryIntegrator:
             raise ValueError(f"rest_min_s must be > 0, got {rest_min_s!r}")
         self.gyro_rest_bias = bool(gyro_rest_bias)
         self.rest_min_s = float(rest_min_s)
-        self._run_yaw = self._run_s = 0.0  # the current rest run: gyro yaw and length
-        self._bias_yaw = self._bias_s = 0.0  # the finished rests of rest_min_s or longer
+        # rest sums (gyro yaw, seconds, yaw^2 / dt, steps): the current run, and the finished rests of
+        # rest_min_s or longer
+        self._run = np.zeros(4)
+        self._done = np.zeros(4)
+        self.calibrations = 0
         self.jumps = 0
         self.pose = np.zeros(3)
         self._last: tuple[float, float] | None = None
@@ -329,34 +334,48 @@ class WheelOdometryIntegrator:
         self.use_gyro = True
         self._pending_gyro_yaw += float(dyaw_rad)
 
-    def _rest(self) -> tuple[float, float]:
-        """(gyro yaw, seconds) over the rests that count: the finished ones and the current run
-        once it is long enough (a rest, not a wheel that did not tick while creeping)."""
-        if self._run_s >= self.rest_min_s:
-            return self._bias_yaw + self._run_yaw, self._bias_s + self._run_s
-        return self._bias_yaw, self._bias_s
+    def _rest(self) -> np.ndarray:
+        """(gyro yaw, seconds, sum of yaw^2 / dt, steps) over the rests that count: the finished
+        ones and the current run once it is long enough (a rest, not a wheel that did not tick
+        while creeping)."""
+        return self._done + self._run if self._run[1] >= self.rest_min_s else self._done
 
     @property
     def gyro_bias_rad_s(self) -> float:
         """The gyro's yaw bias estimated at rest (rad/s; 0 before the first rest)."""
-        yaw, seconds = self._rest()
-        return yaw / seconds if seconds > 0 else 0.0
+        yaw, seconds = self._rest()[:2]
+        return float(yaw / seconds) if seconds > 0 else 0.0
 
     @property
     def rest_s(self) -> float:
         """Rest time the bias estimate is based on (s)."""
-        return self._rest()[1]
+        return float(self._rest()[1])
+
+    @property
+    def gyro_noise(self) -> tuple[float, float] | None:
+        """What the finished rests measured of the gyro's noise: ``(q, s_b)``, ``q`` its
+        white-noise density (rad^2/s: a rest step of ``dt`` s integrates ``bias * dt`` plus noise
+        of variance ``q * dt``) and ``s_b = sqrt(q / rest time)`` the bias estimate's std (rad/s);
+        None before a finished rest of two steps or more. ``calibrations`` counts the finished
+        rests, so a caller can note when this changes."""
+        yaw, seconds, sq, n = self._done
+        if n < 2 or seconds <= 0:
+            return None
+        q = float(max(sq - yaw * yaw / seconds, 0.0) / (n - 1))
+        return q, math.sqrt(q / seconds)
 
     def _gyro_yaw(self, yaw: float, rest: bool, dt_s: float | None) -> float:
         """A step's yaw from the gyro's increments: zero at rest, bias-corrected when moving."""
         if not self.gyro_rest_bias or dt_s is None:
             return yaw
         if rest:
-            self._run_yaw += yaw
-            self._run_s += dt_s
+            self._run += (yaw, dt_s, yaw * yaw / dt_s, 1.0) if dt_s > 0 else (yaw, dt_s, 0.0, 0.0)
             return 0.0
-        self._bias_yaw, self._bias_s = self._rest()  # the run (if it counts) ends here
-        self._run_yaw = self._run_s = 0.0
+        if self._run[1] >= self.rest_min_s:  # the run counts, and ends here
+            self._done = self._done + self._run
+            self.calibrations += 1
+        if self._run.any():
+            self._run = np.zeros(4)
         return yaw - self.gyro_bias_rad_s * dt_s
 
     def step(self, left_rad: float, right_rad: float, dt_s: float | None = None) -> np.ndarray:
@@ -535,3 +554,10 @@ class OdomScaleEstimator:
         self._sum_d2 = self._sum_d2 * keep * keep + d * d
         self.travel_m += d
         self.steps += 1
+
+
+def gyro_heading_sigma(q: float, bias_std_rad_s: float, dt_s: float) -> float:
+    """A calibrated gyro's heading uncertainty over ``dt_s`` of driving (rad): its white noise
+    (density ``q``, rad^2/s) and its bias estimate's error, ``sqrt(q dt + (s_b dt)^2)``."""
+    dt = max(float(dt_s), 0.0)
+    return math.sqrt(q * dt + (bias_std_rad_s * dt) ** 2)

@@ -63,7 +63,7 @@ from .config import FilterConfig, LaserConfig, OdometryMotionConfig, WheelsConfi
 from .faults import ODOMETRY_NONFINITE, ScanChecks
 from .geometry import compose
 from .mount import MOSTLY_FLOOR, MountBuffer, compose_extrinsic, kept_fraction
-from .odometry import GyroBuffer, OdometryBuffer, WheelOdometryIntegrator
+from .odometry import GyroBuffer, OdometryBuffer, WheelOdometryIntegrator, gyro_heading_sigma
 from .stages import PredictionStage
 
 LOOK_AHEAD = 200  # queued scans looked at for evidence about the head scan's odometry
@@ -219,6 +219,12 @@ class PredictorScheduler:
             self.encoders: deque[tuple[int, float | None, float | None]] = deque()
             self.last_encoder_ns: int | None = None
         self.gyro = GyroBuffer() if gyro else None
+        # motion.gyro_noise_scale: (stamp of the wheel step that ended a rest, q, bias std) after each
+        # calibration, so a scan's heading noise depends on its stamp only, not on how far the wheels
+        # were integrated when it came; and the stamp of the last prediction
+        self._gyro_noise: list[tuple[int, float, float]] = []
+        self._gyro_calibrations = 0
+        self._t_update: int | None = None
         self.fog_received = 0
         self.fog_expected: int | None = None
         self.last_imu_ns: int | None = None
@@ -437,6 +443,10 @@ class PredictorScheduler:
             jumps = self.wheels.jumps
             dt = None if self.last_encoder_ns is None else (t - self.last_encoder_ns) / 1e9
             self.odom.add(t, self.wheels.step(left, right, dt))
+            if self.wheels.calibrations != self._gyro_calibrations:
+                self._gyro_calibrations = self.wheels.calibrations
+                if (noise := self.wheels.gyro_noise) is not None:
+                    self._gyro_noise.append((t, *noise))
             if self.wheels.jumps > jumps:
                 self._fault(
                     "encoder_jump",
@@ -626,12 +636,25 @@ class PredictorScheduler:
         if not usable:  # a scan the correlator cannot use: posed from odometry
             self._pass_through(index, stamp, odom, self.stage.gate(odom)[1])
             return
-        update, delta = self.stage.predict(odom)
+        update, delta = self.stage.predict(odom, self._heading_sigma(stamp))
         if update:
+            self._t_update = stamp
             self.waiting_for = index
             self._emit(SendCorrection(index, stamp, payload, self.stage.particles, self.stage.log_weights, odom, mount))
             return
         self._pass_through(index, stamp, odom, delta)
+
+    def _heading_sigma(self, stamp: int) -> float | None:
+        """``motion.gyro_noise_scale`` times the calibrated gyro's heading uncertainty since the last
+        prediction, from the calibrations at or before ``stamp``; None (the profile's heading noise)
+        when off, without a rest-calibrated gyro, or before the first calibration."""
+        scale = self.stage.motion_cfg.gyro_noise_scale
+        if scale <= 0 or self.gyro is None or self._t_update is None or not self._gyro_noise:
+            return None
+        for t, q, bias_std in reversed(self._gyro_noise):
+            if t <= stamp:
+                return scale * gyro_heading_sigma(q, bias_std, (stamp - self._t_update) / 1e9)
+        return None
 
     def _pass_through(self, index: int, stamp: int, odom: np.ndarray, delta: np.ndarray) -> None:
         self._publish_pose(compose(self.corrected_pose, delta), stamp)

@@ -118,12 +118,13 @@ class PredictionStage:
         self.odom_at_update: np.ndarray | None = None
         self.clock = StageClock()  # "predict": the motion model's sampling
 
-    def predict(self, odom_pose: np.ndarray) -> tuple[bool, np.ndarray]:
+    def predict(self, odom_pose: np.ndarray, sigma_theta_rad: float | None = None) -> tuple[bool, np.ndarray]:
         """Odometry pose at a scan -> (update?, increment since the last correction).
 
         The first scan always updates (it starts the map; particles are set to the odometry
         pose, so the map frame is the odometry frame at that moment). Otherwise the particles
-        move only when the increment passes the motion gate.
+        move only when the increment passes the motion gate. ``sigma_theta_rad``: the heading's
+        own uncertainty over the increment (:func:`sample_odometry_motion`), if known.
         """
         odom = np.asarray(odom_pose, dtype=np.float64).reshape(3)
         if self.odom_at_update is None:
@@ -134,7 +135,7 @@ class PredictionStage:
         if not update:
             return False, delta
         t0 = time.perf_counter()
-        self.particles = sample_odometry_motion(self.particles, delta, self.motion_cfg, self.rng)
+        self.particles = sample_odometry_motion(self.particles, delta, self.motion_cfg, self.rng, sigma_theta_rad)
         self.odom_at_update = odom.copy()
         self.clock.add("predict", t0)
         return True, delta
