@@ -649,7 +649,7 @@ class PredictorScheduler:
         prediction, from the calibrations at or before ``stamp``; None (the profile's heading noise)
         when off, without a rest-calibrated gyro, or before the first calibration."""
         scale = self.stage.motion_cfg.gyro_noise_scale
-        if scale <= 0 or self.gyro is None or self._t_update is None or not self._gyro_noise:
+        if scale <= 0 or self._t_update is None or not self._gyro_noise:  # _gyro_noise: a rest-calibrated gyro
             return None
         for t, q, bias_std in reversed(self._gyro_noise):
             if t <= stamp:

@@ -86,9 +86,8 @@ def texture_error(run_dir: Path, sim_dir: Path, align: tuple[float, np.ndarray] 
         "texture_cells": err["cells_coloured"],
     }
     if align is not None:
-        theta, t = align
-        c, s = np.cos(theta), np.sin(theta)
-        out["texture_error_aligned"] = score(c * x - s * y + t[0], s * x + c * y + t[1])["mean_abs_rgb_error"]
+        xy = metrics.apply_se2(align[0], align[1], np.stack([x.ravel(), y.ravel()], axis=1))
+        out["texture_error_aligned"] = score(xy[:, 0].reshape(x.shape), xy[:, 1].reshape(y.shape))["mean_abs_rgb_error"]
     return out
 
 
