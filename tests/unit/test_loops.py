@@ -366,3 +366,59 @@ def test_mapping_stage_maps_poses_across_its_frame_changes():
     stage.frames.append((5.0, np.array([-1.0, 0.0, 0.0])))
     out = stage.corrected(np.array([1.0, 6.0]), np.array([[2.0, 0.0, 0.0], [3.0, 0.0, 0.0]]))
     np.testing.assert_allclose(out, [[2.5, 0.0, 0.0], [2.5, 0.0, 0.0]], atol=1e-12)
+
+
+def _street_drive(n: int, odom_scale: float, early: int, applied: float, followed: float):
+    """A drive along a bent street, 2 m steps of odometry (the wheels' travel is true travel /
+    ``odom_scale``). The filter's poses: its first ``early`` steps at ``followed`` x the odometry's
+    travel (1: it followed the unscaled odometry), the rest at the true travel, with the scale
+    ``applied`` from keyframe ``early`` on. Returns (truth, filter poses, odometry poses, scales)."""
+    yaw = np.concatenate([np.zeros(n // 2), np.full(n - n // 2, math.radians(30.0))])
+    steps = np.stack([np.full(n, 2.0), np.zeros(n), np.diff(yaw, prepend=0.0)], axis=1)
+    truth, filt, odom = [np.zeros(3)], [np.zeros(3)], [np.zeros(3)]
+    for k in range(1, n):
+        s = steps[k].copy()
+        truth.append(compose(truth[-1], s))
+        o = s.copy()
+        o[:2] /= odom_scale
+        odom.append(compose(odom[-1], o))
+        f = o.copy()
+        f[:2] *= followed if k < early else odom_scale
+        filt.append(compose(filt[-1], f))
+    scales = np.where(np.arange(n) < early, 1.0, applied)
+    return np.array(truth), np.array(filt), np.array(odom), scales
+
+
+def _closer(scale_early: bool, filt, odom, scales) -> LoopCloser:
+    cfg = LoopClosureConfig(enabled=True, keyframe_m=1.0, min_loop_travel_m=1e4, scale_early_travel=scale_early)
+    lc = LoopCloser(cfg)
+    pts = np.array([[5.0, 3.0], [5.0, -3.0], [10.0, 3.0]] * 12)
+    for k, (p, o, s) in enumerate(zip(filt, odom, scales)):
+        lc.add(float(k), p, pts, scan_polygon(np.zeros(2), pts), odom=o, scale=float(s))
+    return lc
+
+
+def test_the_travel_before_the_scale_applied_is_rescaled_to_it():
+    """loops.scale_early_travel: the filter followed the wheels' scale (0.993 of the truth) for its
+    first 30 steps, then the estimate (0.993) applied; the graph rescales those first steps to the
+    estimate times the odometry's travel, so the corrected poses lie on the truth's. Off, or with
+    the filter's early travel already at the true scale, or with every scale 1 (the estimate off),
+    nothing moves."""
+    truth, filt, odom, scales = _street_drive(80, 0.993, 30, 0.993, 1.0)
+    keys = np.arange(len(truth), dtype=float)
+    off = _closer(False, filt, odom, scales)
+    assert np.abs(off.corrections(keys)).max() < 1e-9  # the filter's own chain
+    before = np.hypot(*(filt[:, :2] - truth[:, :2]).T)
+    assert before[-1] > 0.35  # 30 steps x 2 m x 0.7 %
+    on = _closer(True, filt, odom, scales)
+    assert on._early_edges() == 29  # the edges into keyframes 1-29
+    after = np.hypot(*(compose(on.corrections(keys), filt)[:, :2] - truth[:, :2]).T)
+    assert after.max() < 0.03 < 0.1 * before[-1]
+    # the filter's matches had already found the true travel: nothing left to rescale
+    truth, filt, odom, scales = _street_drive(80, 0.993, 30, 0.993, 0.993)
+    done = _closer(True, filt, odom, scales)
+    assert np.abs(done.corrections(keys)[:, :2]).max() < 0.01
+    # the estimate off (every scale 1): exactly what the graph gives without the option
+    truth, filt, odom, _ = _street_drive(80, 0.993, 30, 0.993, 1.0)
+    ones = np.ones(len(truth))
+    assert np.array_equal(_closer(True, filt, odom, ones).corrections(keys), off.corrections(keys))

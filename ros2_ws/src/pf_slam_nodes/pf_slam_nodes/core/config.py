@@ -735,6 +735,9 @@ class LoopClosureConfig(_ConfigBase):
         A loop edge whose chi-square stays above this at the solution is dropped.
     rebuild_m : float
         Re-render the map from the optimised poses when a solution moves a keyframe more than this (m) from its map pose.
+    scale_early_travel : bool
+        The travel before ``correlation.odom_scale`` first applied is rescaled in the graph to the
+        latest scale x the odometry's travel there (core/loops.py); nothing while that scale is 1.
     """
 
     enabled: bool = False
@@ -770,10 +773,12 @@ class LoopClosureConfig(_ConfigBase):
     cauchy: float = 3.0
     max_chi2: float = 30.0
     rebuild_m: float = 0.3
+    scale_early_travel: bool = True
 
     def __post_init__(self) -> None:
-        if not isinstance(self.enabled, bool):
-            raise ValueError(f"enabled must be a bool, got {self.enabled!r}")
+        for name in ("enabled", "scale_early_travel"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
         for name in (
             *("keyframe_m", "keyframe_rad", "submap_m", "loop_every_m", "window_max_m", "window_rad"),
             *("resolution_m", "coarse_m", "sigma_m", "max_range_m", "ambiguity_m", "cauchy", "max_chi2"),

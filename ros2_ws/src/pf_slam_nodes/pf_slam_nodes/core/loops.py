@@ -24,6 +24,15 @@ no rival far enough to refuse it; the loop edge then holds across and in yaw as 
 and along that direction loosely (:func:`loop_information`). The solution drops loop edges that
 disagree with the rest (``max_chi2``).
 
+The odometry's scale (``loops.scale_early_travel``): until ``correlation.odom_scale`` has a first
+estimate (two scan pairs, tens to hundreds of metres), the filter predicts with the wheels' scale
+and, along a street, its matches correct only part of that error, so the whole trajectory after
+it is offset by the early stretch's error. Each keyframe carries its odometry pose and the scale
+its set was predicted with; the sequential edges before the first scaled keyframe are rescaled
+by ``latest scale x odometry travel / filter travel`` over that stretch (what the matches already
+corrected is not corrected twice), at every solve, so the final trajectory and map follow the
+latest estimate.
+
 Frames: the poses given to :meth:`LoopCloser.add` are the filter's in one fixed frame, the *raw*
 frame (the stages keep the filter's own frame changes out of it: core/stages.py). The
 corrections map raw poses into the optimised frame.
@@ -54,6 +63,11 @@ MAX_SLIDE_FACTOR = 30.0
 #: sigma) is added without solving the graph again (the solve waits for one that does not, or for
 #: the next read of the corrections): revisits that agree with the filter cost nothing
 AGREES_CHI2 = 1.0
+
+#: ``scale_early_travel`` leaves the early travel as it is when the ratio it would apply is
+#: farther than this from 1 (the filter's travel there is not the odometry's scaled: a slide, a
+#: recovery)
+EARLY_SCALE_MAX = 0.03
 
 
 @dataclasses.dataclass
@@ -279,7 +293,10 @@ class LoopCloser:
         self.raw: list[np.ndarray] = []  # ... the filter's pose (raw frame) ...
         self.travel: list[float] = []  # ... travel so far (m) ...
         self.points: list[np.ndarray] = []  # ... scan points (own frame, voxel-filtered) ...
-        self.polys: list[np.ndarray] = []  # ... free-space polygon (own frame)
+        self.polys: list[np.ndarray] = []  # ... free-space polygon (own frame) ...
+        self.odom: list[np.ndarray | None] = []  # ... odometry pose (odometry frame; None: not given) ...
+        self.scaled: list[bool] = []  # ... its set had an odometry scale applied (not 1)
+        self.scale = 1.0  # the odometry scale applied to the latest keyframe's set
         self.opt = np.zeros((0, 3))  # optimised keyframe poses
         self.mapped = np.zeros((0, 3))  # per keyframe: the correction its scan is mapped with
         self.map_frame = np.zeros(3)  # the correction of the scans mapped since the last rebuild
@@ -297,11 +314,20 @@ class LoopCloser:
     def __len__(self) -> int:
         return len(self.raw)
 
-    def add(self, stamp: float, pose: np.ndarray, points: np.ndarray, polygon: np.ndarray) -> bool:
+    def add(
+        self,
+        stamp: float,
+        pose: np.ndarray,
+        points: np.ndarray,
+        polygon: np.ndarray,
+        odom: np.ndarray | None = None,
+        scale: float = 1.0,
+    ) -> bool:
         """A corrected scan: its stamp (any increasing time key), the filter's pose (raw frame),
-        its points and free-space polygon (:func:`scan_polygon`) in its own frame. True when
-        the scan closed a loop (the optimised poses changed)."""
-        return self.observe(pose) and self.add_keyframe(stamp, pose, points, polygon)
+        its points and free-space polygon (:func:`scan_polygon`) in its own frame, its odometry
+        pose and the odometry scale its set was predicted with (``correlation.odom_scale``; for
+        ``scale_early_travel``). True when the scan closed a loop (the optimised poses changed)."""
+        return self.observe(pose) and self.add_keyframe(stamp, pose, points, polygon, odom, scale)
 
     def observe(self, pose: np.ndarray) -> bool:
         """A corrected scan's pose (raw frame): True when it is to be a keyframe (then give it
@@ -316,9 +342,17 @@ class LoopCloser:
             or abs(wrap_angle(pose[2] - self.raw[-1][2])) >= cfg.keyframe_rad
         )
 
-    def add_keyframe(self, stamp: float, pose: np.ndarray, points: np.ndarray, polygon: np.ndarray) -> bool:
+    def add_keyframe(
+        self,
+        stamp: float,
+        pose: np.ndarray,
+        points: np.ndarray,
+        polygon: np.ndarray,
+        odom: np.ndarray | None = None,
+        scale: float = 1.0,
+    ) -> bool:
         """The keyframe :meth:`observe` asked for; True when it closed a loop."""
-        self.start_keyframe(stamp, pose, points, polygon)
+        self.start_keyframe(stamp, pose, points, polygon, odom, scale)
         return self.finish_keyframe()
 
     @property
@@ -343,7 +377,15 @@ class LoopCloser:
         self._open = None
         return self._close_loop(k, j, window, self.matcher.collect())
 
-    def start_keyframe(self, stamp: float, pose: np.ndarray, points: np.ndarray, polygon: np.ndarray) -> None:
+    def start_keyframe(
+        self,
+        stamp: float,
+        pose: np.ndarray,
+        points: np.ndarray,
+        polygon: np.ndarray,
+        odom: np.ndarray | None = None,
+        scale: float = 1.0,
+    ) -> None:
         """The keyframe :meth:`observe` asked for, and its loop match sent if one is due (then
         :meth:`finish_keyframe` before anything else)."""
         assert self._open is None, "finish_keyframe() first"
@@ -357,6 +399,11 @@ class LoopCloser:
         self.travel.append(self._travel)
         self.points.append(_voxel(pts, cfg.resolution_m))
         self.polys.append(np.asarray(polygon, dtype=np.float64).reshape(-1, 2))
+        self.odom.append(None if odom is None else np.asarray(odom, dtype=np.float64).reshape(3).copy())
+        self.scaled.append(float(scale) != 1.0)
+        if float(scale) != self.scale:
+            self.scale = float(scale)
+            self._unsolved = self._unsolved or self._early_edges() > 0  # the early travel follows the new scale
         nxt = pose if k == 0 else compose(self.opt[k - 1], relative_pose(self.raw[k - 1], pose))
         self.opt = np.vstack([self.opt, nxt[None]])
         self.mapped = np.vstack([self.mapped, self.map_frame[None]])
@@ -456,12 +503,37 @@ class LoopCloser:
         self._solve()
         return True
 
+    def _early_edges(self) -> int:
+        """``scale_early_travel``: how many sequential edges (from the first) lie before the
+        odometry scale first applied, while the latest scale is not 1; 0 otherwise."""
+        if not self.cfg.scale_early_travel or self.scale == 1.0 or not any(self.scaled):
+            return 0
+        first = self.scaled.index(True)  # the first keyframe whose set was scaled
+        if any(o is None for o in self.odom[:first]):
+            return 0
+        return max(first - 1, 0)
+
+    def _seq_edges(self, raw: np.ndarray) -> np.ndarray:
+        """The sequential edges ``(K-1, 3)``: the filter's relative poses, the early travel
+        rescaled (``scale_early_travel``) to the latest scale times the odometry's travel there."""
+        z = relative_pose(raw[:-1], raw[1:])
+        m = self._early_edges()
+        if m == 0:
+            return z
+        odom = np.asarray(self.odom[: m + 1])
+        d = relative_pose(odom[:-1], odom[1:])
+        travel = float(np.hypot(z[:m, 0], z[:m, 1]).sum())
+        factor = self.scale * float(np.hypot(d[:, 0], d[:, 1]).sum()) / max(travel, 1e-9)
+        if travel > 0.0 and abs(factor - 1.0) <= EARLY_SCALE_MAX:
+            z[:m, :2] *= factor
+        return z
+
     def _solve(self) -> None:
         self._unsolved = False
         cfg = self.cfg
         raw = np.asarray(self.raw)
         n = raw.shape[0]
-        z_seq = relative_pose(raw[:-1], raw[1:])
+        z_seq = self._seq_edges(raw)
         dist = np.hypot(z_seq[:, 0], z_seq[:, 1])
         info_seq = np.zeros((n - 1, 3, 3))
         # along / across the direction of travel (the edge's frame is the earlier keyframe's)

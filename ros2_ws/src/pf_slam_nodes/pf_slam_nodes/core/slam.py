@@ -158,7 +158,9 @@ class ParticleFilterSlam:
             odom_pose=odom_pose,
         )
         self.predictor.set_corrected(c.particles, c.log_weights)
-        patch = self.mapper.integrate(c.pose, ranges, angles, range_min, range_max, key=key)
+        patch = self.mapper.integrate(
+            c.pose, ranges, angles, range_min, range_max, key=key, odom=odom_pose, odom_scale=c.odom_scale
+        )
         self.corrector.apply_patch(patch)
         self._pose = c.pose.copy()
         self.num_updates += 0 if first else 1
@@ -223,7 +225,15 @@ class ParticleFilterSlam:
                     odom_pose=a.odom,
                 )
                 patch = self.mapper.integrate(
-                    c.pose, ranges, angles, range_min, range_max, extrinsic=a.mount, key=a.stamp / 1e9
+                    c.pose,
+                    ranges,
+                    angles,
+                    range_min,
+                    range_max,
+                    extrinsic=a.mount,
+                    key=a.stamp / 1e9,
+                    odom=a.odom,
+                    odom_scale=c.odom_scale,
                 )
                 self.corrector.apply_patch(patch)
                 self._pose = c.pose.copy()

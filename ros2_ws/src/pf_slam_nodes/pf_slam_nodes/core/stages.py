@@ -544,11 +544,15 @@ class MappingStage:
         range_max: float = math.inf,
         extrinsic: np.ndarray | None = None,
         key: float = 0.0,
+        odom: np.ndarray | None = None,
+        odom_scale: float = 1.0,
     ) -> MapPatch:
         """Integrate a scan at a corrected pose; returns the patch of the cells it touched
         (``extrinsic``: this scan's mount (12,) on a moving mount, else the configured one;
-        ``key``: the scan's time, increasing, for the loop closure's corrections)."""
-        self.start_integrate(pose, ranges, angles, range_min, range_max, extrinsic, key)
+        ``key``: the scan's time, increasing, for the loop closure's corrections; ``odom``,
+        ``odom_scale``: its odometry pose and the odometry scale its set was predicted with,
+        for ``loops.scale_early_travel``)."""
+        self.start_integrate(pose, ranges, angles, range_min, range_max, extrinsic, key, odom, odom_scale)
         return self.finish_integrate()
 
     def answered(self) -> bool:
@@ -569,6 +573,8 @@ class MappingStage:
         range_max: float = math.inf,
         extrinsic: np.ndarray | None = None,
         key: float = 0.0,
+        odom: np.ndarray | None = None,
+        odom_scale: float = 1.0,
     ) -> None:
         """:meth:`integrate` up to the loop match it sends (if its keyframe is due one); then
         :meth:`finish_integrate` (before anything else of this stage) returns the patch. What
@@ -586,7 +592,7 @@ class MappingStage:
         self.clock.add("map", t0)
         if self.loops is not None:
             t0 = time.perf_counter()
-            self._keyframe(float(key), pose, planar, range_min, range_max)
+            self._keyframe(float(key), pose, planar, range_min, range_max, odom, odom_scale)
             self.clock.add("loops", t0)
 
     def finish_integrate(self) -> MapPatch:
@@ -602,7 +608,9 @@ class MappingStage:
         self.clock.add("loops", t0)
         return patch
 
-    def _keyframe(self, key: float, pose: np.ndarray, planar: tuple, rmin: float, rmax: float) -> None:
+    def _keyframe(
+        self, key: float, pose: np.ndarray, planar: tuple, rmin: float, rmax: float, odom=None, odom_scale: float = 1.0
+    ) -> None:
         """Keep the scan (as the planar sensor saw it, for a re-rendering) and hand it to the
         loop closure if it is a keyframe (which may send a loop match)."""
         raw = compose(self.frame, np.asarray(pose, dtype=np.float64).reshape(3))
@@ -619,7 +627,7 @@ class MappingStage:
         ends = np.where(np.isfinite(r[ok]) & (r[ok] <= reach), r[ok], reach)
         ends = transform_points(np.stack([ends * np.cos(a[ok]), ends * np.sin(a[ok])], axis=1), offset)
         poly = scan_polygon(offset[:2], ends, max(1, ends.shape[0] // 180))
-        self.loops.start_keyframe(key, raw, pts, poly)
+        self.loops.start_keyframe(key, raw, pts, poly, odom, odom_scale)
 
     def _rebuilt(self) -> MapPatch:
         """A closed loop moved the keyframes: the map re-rendered from the optimised poses, whole,

@@ -228,6 +228,7 @@ class Correlator(Node):
                     particles, log_w, *scan_fields(scan), extrinsic=mount_of(pa), odom_pose=np.asarray(pa.odom_pose)
                 )
                 particles, log_w, pose = res.particles, res.log_weights, res.pose
+                scale = res.odom_scale
                 self.corrections_sent += 1
                 if self.stage.scale_measurements != self._scale_pairs:  # each new pair, not only once a second
                     self._scale_pairs = self.stage.scale_measurements
@@ -245,7 +246,7 @@ class Correlator(Node):
                     self.particles_now = particles.shape[0]
                     self._publish_status()
             else:
-                pose = compose(self.stage.pose, pa.pending_delta)
+                pose, scale = compose(self.stage.pose, pa.pending_delta), 1.0
             self.pub_updated.publish(
                 convert.particles_to_msg(
                     particles,
@@ -258,6 +259,7 @@ class Correlator(Node):
                     pending_delta=pa.pending_delta,
                     pose=pose,
                     mount=pa.mount,
+                    odom_scale=scale,
                 )
             )
 

@@ -370,7 +370,14 @@ class Mapper(Node):
         """SLAM: the scan into the grid at the pose; its patch to the correlator once its loop
         match (if any, in the worker process) has answered: the correlator waits for that patch
         before its next correction, the pass-through scans go on meanwhile."""
-        self.stage.start_integrate(pose, *scan_fields(scan), extrinsic=mount_of(pa), key=stamp / 1e9)
+        self.stage.start_integrate(
+            pose,
+            *scan_fields(scan),
+            extrinsic=mount_of(pa),
+            key=stamp / 1e9,
+            odom=np.asarray(pa.odom_pose),
+            odom_scale=pa.odom_scale if pa.odom_scale > 0.0 else 1.0,
+        )
         if not self.stage.answered():
             self._open = (pa.scan_index, stamp)
             self._poll.reset()

@@ -39,6 +39,7 @@ def particles_to_msg(
     pending_delta: np.ndarray | None = None,
     pose: np.ndarray | None = None,
     mount=None,
+    odom_scale: float = 1.0,
 ) -> ParticleArray:
     """(N,3) poses and (N,) log-weights -> ParticleArray (struct of arrays)."""
     msg = ParticleArray()
@@ -49,6 +50,7 @@ def particles_to_msg(
     msg.odom_pose = np.asarray(odom_pose, dtype=np.float64).reshape(3)
     msg.pending_delta = np.zeros(3) if pending_delta is None else np.asarray(pending_delta, dtype=np.float64).reshape(3)
     msg.pose = np.zeros(3) if pose is None else np.asarray(pose, dtype=np.float64).reshape(3)
+    msg.odom_scale = float(odom_scale)
     if mount is not None and len(mount):
         msg.mount = array.array("d", np.ascontiguousarray(mount, dtype=np.float64).reshape(12).tobytes())
     p = np.ascontiguousarray(poses, dtype=np.float64)
