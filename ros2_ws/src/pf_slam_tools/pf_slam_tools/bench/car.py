@@ -154,14 +154,14 @@ def texture_score(run_dir: Path, data: Path, align: tuple[float, np.ndarray] | N
     off = (np.arange(max(int(round(res / gres)), 1)) + 0.5) * gres - 0.5 * res  # the texels in a cell
 
     def truth_cells(theta: float, t) -> np.ndarray:  # the true texels' mean at the cells moved by (theta, t)
-        c, s = np.cos(theta), np.sin(theta)
         acc = np.zeros((h, w, 3))
         for dy in off:
             for dx in off:
-                x, y = xs[None, :] + dx, ys[:, None] + dy
-                gi = np.clip(np.floor((c * x - s * y + t[0] - gorig[0]) / gres).astype(int), 0, gt.shape[1] - 1)
-                gj = np.clip(np.floor((s * x + c * y + t[1] - gorig[1]) / gres).astype(int), 0, gt.shape[0] - 1)
-                acc += gt[gj, gi]
+                x, y = np.broadcast_arrays(xs[None, :] + dx, ys[:, None] + dy)
+                p = metrics.apply_se2(theta, t, np.stack([x.ravel(), y.ravel()], axis=1))
+                gi = np.clip(np.floor((p[:, 0] - gorig[0]) / gres).astype(int), 0, gt.shape[1] - 1)
+                gj = np.clip(np.floor((p[:, 1] - gorig[1]) / gres).astype(int), 0, gt.shape[0] - 1)
+                acc += gt[gj, gi].reshape(h, w, 3)
         return np.rint(acc / off.size**2).astype(np.uint8)
 
     gt_cells = truth_cells(0.0, (0.0, 0.0))
