@@ -143,8 +143,8 @@ def gyro_line(g: dict) -> str:
         return (
             "warning: the gyro's yaw bias was never calibrated: the wheels never stood still for "
             "wheels.rest_min_s, so the heading drifts with the gyro's whole bias "
-            "and only the particles' heading noise follows it (simulated car drives, worlds 1-10: ATE "
-            "median 0.16 m calibrated, 0.38 m not; docs/car.md); a few seconds of standstill in the bag calibrate it"
+            "and only the particles' heading noise follows it (docs/car.md measures what that costs); "
+            "a few seconds of standstill in the bag calibrate it"
         )
     return (
         f"gyro yaw bias: {1e6 * g['bias_rad_s']:+.1f} µrad/s ({math.degrees(g['bias_rad_s']) * 3600:+.2f} deg/h), "
