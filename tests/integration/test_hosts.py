@@ -169,10 +169,9 @@ def test_nodes_on_two_hosts_give_the_one_process_trajectory(tmp_path, ros_domain
                     text=True,
                     timeout=90,
                 )
-                if (out / "trajectory.tum").is_file() and (
-                    out / "trajectory.tum"
-                ).stat().st_size > 0:  # a save before any scan is empty
-                    poses = np.loadtxt(out / "trajectory.tum", ndmin=2)
+                saved = out / "trajectory.tum"
+                if saved.is_file() and saved.stat().st_size > 0:  # a save before any scan is empty
+                    poses = np.loadtxt(saved, ndmin=2)
                     if len(poses) >= 600:
                         break
             logs = {n: (tmp_path / f"{n}.log").read_text()[-1500:] for h in HOSTS.values() for n in h[1]}
