@@ -293,10 +293,12 @@ class LoopCloser:
         self.raw: list[np.ndarray] = []  # ... the filter's pose (raw frame) ...
         self.travel: list[float] = []  # ... travel so far (m) ...
         self.points: list[np.ndarray] = []  # ... scan points (own frame, voxel-filtered) ...
-        self.polys: list[np.ndarray] = []  # ... free-space polygon (own frame) ...
-        self.odom: list[np.ndarray | None] = []  # ... odometry pose (odometry frame; None: not given) ...
-        self.scaled: list[bool] = []  # ... its set had an odometry scale applied (not 1)
+        self.polys: list[np.ndarray] = []  # ... free-space polygon (own frame)
         self.scale = 1.0  # the odometry scale applied to the latest keyframe's set
+        # scale_early_travel: the keyframes' odometry poses (None: not given) while no set was scaled;
+        # from the first scaled keyframe on, that stretch once: (edges, odometry travel, filter travel)
+        self._early_odom: list[np.ndarray | None] | None = [] if cfg.scale_early_travel else None
+        self._early: tuple[int, float, float] | None = None
         self.opt = np.zeros((0, 3))  # optimised keyframe poses
         self.mapped = np.zeros((0, 3))  # per keyframe: the correction its scan is mapped with
         self.map_frame = np.zeros(3)  # the correction of the scans mapped since the last rebuild
@@ -399,8 +401,8 @@ class LoopCloser:
         self.travel.append(self._travel)
         self.points.append(_voxel(pts, cfg.resolution_m))
         self.polys.append(np.asarray(polygon, dtype=np.float64).reshape(-1, 2))
-        self.odom.append(None if odom is None else np.asarray(odom, dtype=np.float64).reshape(3).copy())
-        self.scaled.append(float(scale) != 1.0)
+        if self._early_odom is not None:
+            self._early_stretch(odom, float(scale))
         if float(scale) != self.scale:
             self.scale = float(scale)
             self._unsolved = self._unsolved or self._early_edges() > 0  # the early travel follows the new scale
@@ -503,15 +505,26 @@ class LoopCloser:
         self._solve()
         return True
 
+    def _early_stretch(self, odom: np.ndarray | None, scale: float) -> None:
+        """``scale_early_travel``: the newest keyframe's odometry pose kept while no set was
+        scaled; at the first scaled keyframe, the stretch before it measured once (neither its
+        odometry nor the filter's raw travel changes later) and the poses let go."""
+        if scale == 1.0:
+            self._early_odom.append(None if odom is None else np.asarray(odom, dtype=np.float64).reshape(3).copy())
+            return
+        odoms, self._early_odom = self._early_odom, None
+        m = max(len(odoms) - 1, 0)  # the edges into the keyframes before this one
+        if m == 0 or any(o is None for o in odoms):
+            return
+        raw = np.asarray(self.raw[: m + 1])
+        z = relative_pose(raw[:-1], raw[1:])
+        d = relative_pose(np.asarray(odoms[:-1]), np.asarray(odoms[1:]))
+        self._early = (m, float(np.hypot(d[:, 0], d[:, 1]).sum()), float(np.hypot(z[:, 0], z[:, 1]).sum()))
+
     def _early_edges(self) -> int:
         """``scale_early_travel``: how many sequential edges (from the first) lie before the
         odometry scale first applied, while the latest scale is not 1; 0 otherwise."""
-        if not self.cfg.scale_early_travel or self.scale == 1.0 or not any(self.scaled):
-            return 0
-        first = self.scaled.index(True)  # the first keyframe whose set was scaled
-        if any(o is None for o in self.odom[:first]):
-            return 0
-        return max(first - 1, 0)
+        return self._early[0] if self._early is not None and self.scale != 1.0 else 0
 
     def _seq_edges(self, raw: np.ndarray) -> np.ndarray:
         """The sequential edges ``(K-1, 3)``: the filter's relative poses, the early travel
@@ -520,10 +533,8 @@ class LoopCloser:
         m = self._early_edges()
         if m == 0:
             return z
-        odom = np.asarray(self.odom[: m + 1])
-        d = relative_pose(odom[:-1], odom[1:])
-        travel = float(np.hypot(z[:m, 0], z[:m, 1]).sum())
-        factor = self.scale * float(np.hypot(d[:, 0], d[:, 1]).sum()) / max(travel, 1e-9)
+        _, odom_travel, travel = self._early
+        factor = self.scale * odom_travel / max(travel, 1e-9)
         if travel > 0.0 and abs(factor - 1.0) <= EARLY_SCALE_MAX:
             z[:m, :2] *= factor
         return z
