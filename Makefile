@@ -24,7 +24,7 @@ lint: setup   ## ruff: the linter and the formatter's check (ruff format . rewri
 test: setup lint
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
 
-bench: setup   ## prints tables (also written to runs/bench/carmen*.md and docs/results.md): the CARMEN logs over 15 filter seeds in one process (five hid a lost run), seed 0 one process per node; the eight corrected-pose buildings and three simulated worlds x 10 seeds, the simulated ones also at 2 and 3 cm range noise x 5 seeds, ROS-free loop (~70 min here)
+bench: setup   ## prints tables (also written to runs/bench/carmen*.md and docs/results.md): the CARMEN logs over 15 filter seeds in one process (five hid a lost run), seed 0 one process per node; the eight corrected-pose buildings and three simulated worlds x 10 seeds, the simulated ones also at 2 and 3 cm range noise and with a 0.25-degree 1081-beam laser x 5 seeds, ROS-free loop (~85 min here)
 	$(BIN)/pf-slam bench messages --results docs/results.md
 	$(BIN)/pf-slam bench carmen --data ../shared/data --out runs/bench --seeds 0 1 2 3 4 5 6 7 8 9 10 11 12 13 14 --results docs/results.md
 	$(BIN)/pf-slam bench carmen --data ../shared/data --out runs/bench --seeds 0 --processes multi --results docs/results.md
@@ -34,6 +34,8 @@ bench: setup   ## prints tables (also written to runs/bench/carmen*.md and docs/
 	    --datasets office corridors ring
 	for noise in 0.02 0.03; do $(BIN)/pf-slam bench worlds --data ../shared/data --out runs/bench --seeds 0 1 2 3 4 \
 	    --results docs/results.md --datasets office corridors ring --range-noise $$noise || exit 1; done
+	$(BIN)/pf-slam bench worlds --data ../shared/data --out runs/bench --seeds 0 1 2 3 4 --results docs/results.md \
+	    --datasets office corridors ring --laser 1081,270,30
 
 bench-scaling: setup   ## particles 10-1000 (intel_2726) and grids 500²-4000² (intel_910): wall, RTF, peak RSS, stage split; plots in docs/img (~25 min)
 	$(BIN)/pf-slam bench scaling --data ../shared/data --out runs/bench --plot-dir docs/img --results docs/results.md

@@ -12,16 +12,19 @@ from pf_slam_nodes.core.geometry import compose, relative_pose
 from pf_slam_nodes.core.stages import CorrectionStage, MappingStage
 
 
-def along_track_drift(overrides: dict, steps: int = 300, noise_m: float = 0.0) -> tuple[float, float]:
+def along_track_drift(
+    overrides: dict, steps: int = 300, noise_m: float = 0.0, angles: np.ndarray | None = None
+) -> tuple[float, float]:
     """The summed along-track correction (m) and its rms per scan (m) over the first ``steps``
     scans, with the indoor profile plus ``overrides`` and ranges with Gaussian noise ``noise_m``
-    (seed 0)."""
+    (seed 0); ``angles``: the laser's beams (rad; default the simulator's 181 over 180 deg)."""
     from pf_slam_tools.bench.worlds import indoor_configs, sim_drive
     from pf_slam_tools.sim.indoor import ray_cast
     from pf_slam_tools.sim.worlds import simulate_world
 
     world, drive = simulate_world("ring", 0), sim_drive("ring", 0)
-    truth, angles = drive.truth[:steps], drive.angles[0]
+    truth = drive.truth[:steps]
+    angles = drive.angles[0] if angles is None else np.asarray(angles, dtype=np.float64)
     ranges = ray_cast(truth, angles, world.world.segments, drive.range_max).reshape(steps, -1)
     ranges = ranges + noise_m * np.random.default_rng(0).normal(size=ranges.shape)
     filt, _, grid, corr, res = indoor_configs(0, overrides)[:5]

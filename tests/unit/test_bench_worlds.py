@@ -85,3 +85,25 @@ def test_range_noise_is_refused_for_real_scans_and_bad_values():
         sim.simulate_world("office", 0, float("nan"))
     worlds.check_noise(["ring", "office"], 0.0)
     worlds.check_noise(["edmonton"], None)
+
+
+def test_another_laser_is_simulated_and_has_its_own_section():
+    import pytest
+
+    dense = sim.simulate_world("office", 1, laser=(1081, 270.0, 30.0))
+    default = sim.simulate_world("office", 1)
+    assert dense.ranges.shape == (len(default.truth), 1081) and dense.range_max == 30.0
+    assert np.array_equal(dense.truth, default.truth) and np.array_equal(dense.odom, default.odom)
+    assert np.isclose(dense.angles[0], -np.radians(135.0)) and np.isclose(dense.angles[-1], np.radians(135.0))
+    assert np.allclose(np.diff(dense.angles), np.radians(0.25))
+    ring = sim.laser_angles(360, 360.0)  # a full circle: no beam twice
+    assert np.isclose(ring[-1] - ring[0], np.radians(359.0))
+    assert worlds.parse_laser("1081,270,30") == (1081, 270.0, 30.0) and worlds.parse_laser(None) is None
+    part, title = worlds.section(["ring"], None, (1081, 270.0, 30.0))
+    assert part == "worlds_sim_laser1081x270" and "1081-beam 270 deg laser (0.25 deg), 30 m" in title
+    assert worlds.section(["ring"], 0.02, (361, 180.0, 20.0))[0] == "worlds_sim_noise20mm_laser361x180"
+    with pytest.raises(ValueError, match="--laser sets the simulated laser.*edmonton"):
+        worlds.check_noise(["ring", "edmonton"], None, (1081, 270.0, 30.0))
+    for bad in ("1081,270", "many,270,30", "1,270,30", "1081,400,30"):
+        with pytest.raises(ValueError, match="laser"):
+            worlds.parse_laser(bad)

@@ -9,7 +9,7 @@ import pytest
 from ring_harness import along_track_drift
 
 from pf_slam_nodes.core.config import CorrelationConfig
-from pf_slam_nodes.core.scan import shadow_beams
+from pf_slam_nodes.core.scan import shadow_beams, shadow_neighbours
 
 
 def test_the_far_side_of_a_range_jump_is_flagged():
@@ -23,11 +23,27 @@ def test_the_far_side_of_a_range_jump_is_flagged():
     assert not shadow_beams(r, 0.0, 1).any()  # off
 
 
+def test_the_neighbourhood_is_an_angle_on_a_dense_scanner():
+    deg = np.radians
+    one, half, quarter = (deg(np.linspace(-90.0, 90.0, n)) for n in (181, 361, 721))
+    angle = 0.0131  # the indoor profile's 0.75 deg
+    assert shadow_neighbours(one, 1, angle) == 1  # a 1 deg scanner keeps its one beam ...
+    assert shadow_neighbours(half, 1, angle) == 1  # ... and a 0.5 deg one (every CARMEN log)
+    assert shadow_neighbours(quarter, 1, angle) == 3  # 0.25 deg: the same angle, three beams
+    assert shadow_neighbours(quarter[::-1], 1, angle) == 3  # mirrored (upside-down mount)
+    assert shadow_neighbours(deg(np.linspace(-135.0, 135.0, 811)), 1, angle) == 2  # 0.33 deg
+    assert shadow_neighbours(quarter, 5, angle) == 5  # never fewer than shadow_beams
+    assert shadow_neighbours(quarter, 1, 0.0) == 1  # off: shadow_beams alone
+    assert shadow_neighbours(np.zeros(1), 2, angle) == 2
+
+
 def test_negative_values_are_refused():
     with pytest.raises(ValueError, match="shadow_jump_m"):
         CorrelationConfig(shadow_jump_m=-0.1)
     with pytest.raises(ValueError, match="shadow_beams"):
         CorrelationConfig(shadow_beams=0)
+    with pytest.raises(ValueError, match="shadow_angle_rad"):
+        CorrelationConfig(shadow_angle_rad=-0.01)
 
 
 def test_matches_no_longer_run_ahead_along_a_pillared_corridor():
@@ -39,6 +55,16 @@ def test_matches_no_longer_run_ahead_along_a_pillared_corridor():
     )
     assert drift_off > 0.12 and jitter_off > 0.014  # 90 m of corridor: 0.19 m ahead, 17 mm per scan
     assert abs(drift_on) < 0.08 and jitter_on < 0.011  # 0.04 m, 8 mm
+
+
+def test_a_dense_scanner_does_not_run_ahead_either():
+    # 1081 beams over 270 deg (a 0.25 deg scanner) with 1 cm of range noise: one beam beside an
+    # edge is a quarter of the angle it is on the 1 deg laser, and the matches ran ahead again
+    dense = np.radians(np.linspace(-135.0, 135.0, 1081))
+    drift_beam, _ = along_track_drift({"correlation.shadow_angle_rad": 0.0}, 600, 0.01, dense)
+    drift_angle, _ = along_track_drift({}, 600, 0.01, dense)  # the indoor profile's 0.75 deg
+    assert drift_beam > 0.15  # 0.21 m ahead over 60 m
+    assert abs(drift_angle) < 0.1  # 0.06 m behind
 
 
 def test_points_left_out_of_the_match_still_weigh_the_particles():

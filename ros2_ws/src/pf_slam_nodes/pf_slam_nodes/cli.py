@@ -251,6 +251,12 @@ def build_parser() -> argparse.ArgumentParser:
         "their own results section; refused with the corrected-pose buildings (real scans)",
     )
     b.add_argument(
+        "--laser",
+        metavar="BEAMS,FOV_DEG,RANGE_M",
+        help="worlds: the simulated worlds' laser (e.g. 1081,270,30: a 0.25 deg scanner; default the "
+        "simulator's 181,180,20); their own results section; refused with the corrected-pose buildings",
+    )
+    b.add_argument(
         "--sweep-particles",
         type=int,
         nargs="*",
@@ -547,8 +553,11 @@ def _bench(args) -> tuple[str | None, str, str]:
     if args.what == "worlds":
         from pf_slam_tools.bench import worlds
 
-        table = worlds.main(args.data, args.out, args.datasets, tuple(args.seeds), range_sigma_m=args.range_noise)
-        part, title = worlds.section(args.datasets, args.range_noise)
+        laser = worlds.parse_laser(args.laser)
+        table = worlds.main(
+            args.data, args.out, args.datasets, tuple(args.seeds), range_sigma_m=args.range_noise, laser=laser
+        )
+        part, title = worlds.section(args.datasets, args.range_noise, laser)
         return part, f"Seeds and worlds: {title} (the indoor profile, ROS-free loop)", table
     from pf_slam_tools.bench import carmen
 

@@ -48,9 +48,9 @@ import math
 import cv2
 import numpy as np
 
-from .config import LoopClosureConfig
 from .deferred import Offload, inline
 from .geometry import compose, relative_pose, wrap_angle
+from .loopconfig import LoopClosureConfig
 from .posegraph import edge_errors, optimize
 from .scan import transform_points, transform_points_batch
 

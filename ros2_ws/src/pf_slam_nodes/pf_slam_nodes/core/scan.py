@@ -88,6 +88,17 @@ def shadow_beams(ranges: np.ndarray, jump_m: float, beams: int = 1) -> np.ndarra
     return out & np.isfinite(r)
 
 
+def shadow_neighbours(angles: np.ndarray, beams: int, angle_rad: float) -> int:
+    """The beams on each side that :func:`shadow_beams` looks at: ``beams``, or as many as lie
+    within ``angle_rad`` of a beam at the scan's beam spacing (the median step of ``angles``)
+    if that is more; ``angle_rad <= 0``: ``beams``."""
+    a = np.asarray(angles, dtype=np.float64).reshape(-1)
+    if angle_rad <= 0.0 or a.size < 2:
+        return int(beams)
+    step = float(np.median(np.abs(np.diff(a))))
+    return max(int(beams), int(math.floor(angle_rad / step + 1e-9)) if step > 0.0 else 0)
+
+
 def scan_to_points(
     ranges: np.ndarray,
     angles: np.ndarray,

@@ -49,6 +49,7 @@ from .scan import (
     planar_scan,
     scan_to_points,
     shadow_beams,
+    shadow_neighbours,
     smooth_scan,
     sparse_scan_range,
     transform_points,
@@ -351,7 +352,8 @@ class CorrectionStage:
         lo, hi = max(range_min, 1e-6), min(range_max, cut)
         pts = scan_to_points(ranges, angles, lo, hi)
         # beams behind an occluding edge weigh the particles but move no pose (correlation.shadow_jump_m)
-        shadow = shadow_beams(ranges, self.corr_cfg.shadow_jump_m, self.corr_cfg.shadow_beams)
+        near = shadow_neighbours(angles, self.corr_cfg.shadow_beams, self.corr_cfg.shadow_angle_rad)
+        shadow = shadow_beams(ranges, self.corr_cfg.shadow_jump_m, near)
         match = ~shadow[valid_beams(ranges, lo, hi)] if shadow.any() else None
         if np.any(offset):
             pts = transform_points(pts, offset)

@@ -167,12 +167,14 @@ def building_drive(data_dir: Path, name: str, seed: int, _cache: dict = {}) -> D
     return Drive(name, truth, synthesise_odometry(truth, rng), ranges, angles, rmax)
 
 
-def sim_drive(name: str, seed: int, range_sigma_m: float | None = None) -> Drive:
+def sim_drive(name: str, seed: int, range_sigma_m: float | None = None, laser: tuple | None = None) -> Drive:
     """Simulated world ``name`` with ``seed``; ``range_sigma_m``: the laser's range noise (m;
-    None: the simulator's 0.01)."""
+    None: the simulator's 0.01); ``laser``: ``(beams, fov_deg, range_max_m)`` (None: the
+    simulator's 181 beams over 180 deg, 20 m)."""
+    from pf_slam_tools.sim.indoor import RANGE_SIGMA_M
     from pf_slam_tools.sim.worlds import simulate_world
 
-    d = simulate_world(name, seed) if range_sigma_m is None else simulate_world(name, seed, range_sigma_m)
+    d = simulate_world(name, seed, RANGE_SIGMA_M if range_sigma_m is None else range_sigma_m, laser)
     r = [row.astype(np.float64) for row in d.ranges]
     return Drive(name, d.truth, d.odom, r, [d.angles] * len(r), d.range_max)
 
@@ -202,11 +204,13 @@ def bench(
     out_dir: Path | None = None,
     log=print,
     range_sigma_m: float | None = None,
+    laser: tuple | None = None,
 ) -> list[dict]:
     rows = []
     for name in names:
         for seed in seeds:
-            drive = sim_drive(name, seed, range_sigma_m) if name in SIM_WORLDS else building_drive(data_dir, name, seed)
+            sim = name in SIM_WORLDS
+            drive = sim_drive(name, seed, range_sigma_m, laser) if sim else building_drive(data_dir, name, seed)
             est, info = run_drive(drive, seed, overrides)
             odo = score(drive.odom, drive.truth)
             row = {
@@ -219,7 +223,8 @@ def bench(
             }
             rows.append(row)
             if out_dir is not None:
-                np.savetxt(Path(out_dir) / f"{name}{_noise_tag(range_sigma_m)}_seed{seed}.txt", est, fmt="%.6f")
+                tag = _noise_tag(range_sigma_m) + _laser_tag(laser)
+                np.savetxt(Path(out_dir) / f"{name}{tag}_seed{seed}.txt", est, fmt="%.6f")
             log(
                 f"{name} seed {seed}: ATE {row['ate_rmse']:.3f} m (max {row['ate_max']:.2f}), relations "
                 f"{row['rel_mean']:.3f} m, {100 * row['rel_over_05']:.1f} % > 0.5 m, {row['wall_s']:.1f} s"
@@ -265,27 +270,54 @@ def _noise_tag(range_sigma_m: float | None) -> str:
     return "" if range_sigma_m is None else f"_noise{1000 * range_sigma_m:g}mm"
 
 
-def check_noise(names, range_sigma_m: float | None) -> None:
-    """A range noise applies to the simulated worlds only: refuse it with a building."""
-    if range_sigma_m is None:
+def _laser_tag(laser: tuple | None) -> str:
+    """``""`` for the simulator's own laser, else ``"_laser1081x270"`` (file and section names)."""
+    return "" if laser is None else f"_laser{int(laser[0])}x{float(laser[1]):g}"
+
+
+def parse_laser(text: str | None) -> tuple | None:
+    """``--laser BEAMS,FOV_DEG,RANGE_M`` (e.g. ``1081,270,30``) -> ``(beams, fov_deg, range_m)``."""
+    if text is None:
+        return None
+    parts = text.split(",")
+    try:
+        beams, fov, rmax = int(parts[0]), float(parts[1]), float(parts[2])
+    except (ValueError, IndexError):
+        raise ValueError(f"--laser must be BEAMS,FOV_DEG,RANGE_M (e.g. 1081,270,30), got {text!r}") from None
+    if len(parts) != 3:
+        raise ValueError(f"--laser must be BEAMS,FOV_DEG,RANGE_M (e.g. 1081,270,30), got {text!r}")
+    from pf_slam_tools.sim.worlds import laser_angles
+
+    laser_angles(beams, fov)  # refuses a laser that cannot be
+    return beams, fov, rmax
+
+
+def check_noise(names, range_sigma_m: float | None, laser: tuple | None = None) -> None:
+    """A range noise or another laser applies to the simulated worlds only: refuse it with a building."""
+    if range_sigma_m is None and laser is None:
         return
-    if not (np.isfinite(range_sigma_m) and range_sigma_m >= 0):
+    if range_sigma_m is not None and not (np.isfinite(range_sigma_m) and range_sigma_m >= 0):
         raise ValueError(f"--range-noise must be a finite number >= 0 (m), got {range_sigma_m!r}")
     real = [n for n in (names or (BUILDINGS + SIM_WORLDS)) if n not in SIM_WORLDS]
     if real:
+        what = "--range-noise sets the simulated laser's noise" if laser is None else "--laser sets the simulated laser"
         raise ValueError(
-            f"--range-noise sets the simulated laser's noise, and {', '.join(real)}: real scans, "
+            f"{what}, and {', '.join(real)}: real scans, "
             f"not simulated (use --datasets with {', '.join(SIM_WORLDS)} only)"
         )
 
 
-def section(names, range_sigma_m: float | None = None) -> tuple[str, str]:
+def section(names, range_sigma_m: float | None = None, laser: tuple | None = None) -> tuple[str, str]:
     """The results section and its title for a run over ``names`` (None: every world)."""
     names = set(names or (BUILDINGS + SIM_WORLDS))
-    if names <= set(SIM_WORLDS) and range_sigma_m is not None:
+    if names <= set(SIM_WORLDS) and (range_sigma_m is not None or laser is not None):
+        what = [] if range_sigma_m is None else [f"range noise {100 * range_sigma_m:g} cm"]
+        if laser is not None:
+            step = float(laser[1]) / (int(laser[0]) - (0 if float(laser[1]) == 360.0 else 1))
+            what.append(f"a {int(laser[0])}-beam {float(laser[1]):g} deg laser ({step:.2g} deg), {float(laser[2]):g} m")
         return (
-            "worlds_sim" + _noise_tag(range_sigma_m),
-            f"simulated buildings with ground truth, range noise {100 * range_sigma_m:g} cm",
+            "worlds_sim" + _noise_tag(range_sigma_m) + _laser_tag(laser),
+            "simulated buildings with ground truth, " + ", ".join(what),
         )
     if names <= set(SIM_WORLDS):
         return "worlds_sim", "simulated buildings with ground truth"
@@ -302,17 +334,19 @@ def main(
     sim_seeds=None,
     overrides: dict | None = None,
     range_sigma_m: float | None = None,
+    laser: tuple | None = None,
 ) -> str:
     """Every world of ``names`` over ``seeds``; ``range_sigma_m``: the simulated worlds' range
-    noise (m; None: the simulator's 0.01; refused with a building)."""
-    check_noise(names, range_sigma_m)
+    noise (m; None: the simulator's 0.01), ``laser``: their laser (:func:`sim_drive`); both
+    refused with a building."""
+    check_noise(names, range_sigma_m, laser)
     out = Path(out_dir) / "worlds"
     out.mkdir(parents=True, exist_ok=True)
     names = list(names or (BUILDINGS + SIM_WORLDS))
     rows = []
     for name in names:
         s = sim_seeds if (name in SIM_WORLDS and sim_seeds) else seeds
-        rows += bench(Path(data_dir), [name], s, overrides, out, range_sigma_m=range_sigma_m)
+        rows += bench(Path(data_dir), [name], s, overrides, out, range_sigma_m=range_sigma_m, laser=laser)
     text = (
         "Median and worst over the seeds:\n\n"
         + summary_table(rows)
@@ -325,7 +359,7 @@ def main(
         "Relations: every 10th scan to 10 and 100 scans later, and to its revisit (nearest scan 300 or more "
         "scans later within 3 m)."
     )
-    part = section(names, range_sigma_m)[0]
+    part = section(names, range_sigma_m, laser)[0]
     (out / f"{part}.md").write_text(text + "\n")
     (out / f"{part}.json").write_text(json.dumps(rows, indent=2) + "\n")
     return text

@@ -449,20 +449,22 @@ def simulate_scans(
     rng: np.random.Generator,
     mount: tuple[np.ndarray, np.ndarray] | None = None,
     range_sigma_m: float = RANGE_SIGMA_M,
+    angles: np.ndarray | None = None,
+    range_max: float = RANGE_MAX_M,
 ) -> np.ndarray:
     """Laser ranges at ``poses``: ray cast, ``N(0, range_sigma_m^2)`` noise, dropouts.
 
     ``mount``: the laser's ``(R, t)`` in the base frame (its scan plane horizontal: upright or
-    upside down, which mirrors the beams); default at the base origin.
+    upside down, which mirrors the beams); default at the base origin. ``angles``, ``range_max``:
+    another laser's beams (rad) and range (m); default the simulator's (:func:`beam_angles`).
 
     Returns
     -------
     np.ndarray
-        ``(K, N_BEAMS)`` float32 ranges (m); ``+inf`` = no return (nothing within
-        ``RANGE_MAX_M``, a noisy range beyond it, or a dropout with probability
-        ``DROPOUT_PROB``).
+        ``(K, B)`` float32 ranges (m); ``+inf`` = no return (nothing within ``range_max``, a
+        noisy range beyond it, or a dropout with probability ``DROPOUT_PROB``).
     """
-    angles = beam_angles()
+    angles = beam_angles() if angles is None else np.asarray(angles, dtype=np.float64)
     if mount is not None:
         rot, t = (np.asarray(v, dtype=np.float64) for v in mount)
         if abs(abs(rot[2, 2]) - 1.0) > 1e-9:
@@ -474,10 +476,10 @@ def simulate_scans(
             axis=-1,
         )
         angles = math.copysign(1.0, rot[2, 2]) * angles
-    r = ray_cast(poses, angles, segments, RANGE_MAX_M).reshape(-1, N_BEAMS)
+    r = ray_cast(poses, angles, segments, range_max).reshape(-1, angles.size)
     r = r + range_sigma_m * rng.normal(size=r.shape)
     r[rng.random(size=r.shape) < DROPOUT_PROB] = np.inf
-    r[r > RANGE_MAX_M] = np.inf
+    r[r > range_max] = np.inf
     return r.astype(np.float32)
 
 

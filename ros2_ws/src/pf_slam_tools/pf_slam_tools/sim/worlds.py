@@ -28,7 +28,7 @@ from .floor import CORRIDOR_M, floor_world
 from .indoor import SCAN_RATE_HZ, SIM_RATE_HZ, IndoorWorld, _box_corners, _loop_primitives, simulate_odometry
 from .paths import pose_on_path
 
-__all__ = ["SimDrive", "WORLDS", "corridors_world", "simulate_world"]
+__all__ = ["SimDrive", "WORLDS", "corridors_world", "laser_angles", "simulate_world"]
 
 
 @dataclass
@@ -134,21 +134,23 @@ def _drive(pieces: np.ndarray, speed: float, laps: float, rng: np.random.Generat
     return p
 
 
-def _scan(truth: np.ndarray, world: IndoorWorld, rng: np.random.Generator, range_sigma_m: float) -> np.ndarray:
+def _scan(
+    truth: np.ndarray, world: IndoorWorld, rng: np.random.Generator, range_sigma_m: float, angles, range_max: float
+) -> np.ndarray:
     """Laser ranges at ``truth`` poses, ray cast against the segments near each chunk of poses."""
     seg = world.segments
-    out = np.empty((len(truth), indoor.N_BEAMS), dtype=np.float32)
+    out = np.empty((len(truth), len(angles)), dtype=np.float32)
     for k0 in range(0, len(truth), 50):
         pk = truth[k0 : k0 + 50]
-        lo = pk[:, :2].min(axis=0) - indoor.RANGE_MAX_M - 1
-        hi = pk[:, :2].max(axis=0) + indoor.RANGE_MAX_M + 1
+        lo = pk[:, :2].min(axis=0) - range_max - 1
+        hi = pk[:, :2].max(axis=0) + range_max + 1
         near = (
             (np.maximum(seg[:, 0], seg[:, 2]) >= lo[0])
             & (np.minimum(seg[:, 0], seg[:, 2]) <= hi[0])
             & (np.maximum(seg[:, 1], seg[:, 3]) >= lo[1])
             & (np.minimum(seg[:, 1], seg[:, 3]) <= hi[1])
         )
-        out[k0 : k0 + 50] = indoor.simulate_scans(pk, seg[near], rng, range_sigma_m=range_sigma_m)
+        out[k0 : k0 + 50] = indoor.simulate_scans(pk, seg[near], rng, None, range_sigma_m, angles, range_max)
     return out
 
 
@@ -178,11 +180,31 @@ def _ring(rng: np.random.Generator) -> tuple[IndoorWorld, np.ndarray]:
 WORLDS = {"office": _office, "corridors": _corridors, "ring": _ring}
 
 
-def simulate_world(name: str, seed: int, range_sigma_m: float = indoor.RANGE_SIGMA_M) -> SimDrive:
+def laser_angles(beams: int, fov_deg: float) -> np.ndarray:
+    """``(beams,)`` beam angles (rad) spread evenly over ``fov_deg`` centred ahead (a full circle:
+    ``beams`` steps around it, no beam twice)."""
+    if not (isinstance(beams, int) and beams >= 2 and math.isfinite(fov_deg) and 0.0 < fov_deg <= 360.0):
+        raise ValueError(f"a laser needs >= 2 beams over 0-360 deg, got {beams!r} beams over {fov_deg!r} deg")
+    fov = math.radians(fov_deg)
+    step = fov / beams if fov_deg == 360.0 else fov / (beams - 1)
+    return -0.5 * fov + step * np.arange(beams, dtype=np.float64)
+
+
+def simulate_world(
+    name: str, seed: int, range_sigma_m: float = indoor.RANGE_SIGMA_M, laser: tuple | None = None
+) -> SimDrive:
     """Drive world ``name`` with ``seed`` (drive, odometry, laser: independent streams); the
-    laser's range noise has std ``range_sigma_m`` (m; the same drive and odometry at any value)."""
+    laser's range noise has std ``range_sigma_m`` (m; the same drive and odometry at any value).
+    ``laser``: ``(beams, fov_deg, range_max_m)`` of another laser (default the simulator's 181
+    beams over 180 deg, 20 m)."""
     if not (math.isfinite(range_sigma_m) and range_sigma_m >= 0):
         raise ValueError(f"range_sigma_m must be a finite number >= 0 (m), got {range_sigma_m!r}")
+    if laser is None:
+        angles, range_max = indoor.beam_angles(), indoor.RANGE_MAX_M
+    else:
+        angles, range_max = laser_angles(int(laser[0]), float(laser[1])), float(laser[2])
+        if not (math.isfinite(range_max) and range_max > 1.0):
+            raise ValueError(f"the laser's range must be a finite number > 1 (m), got {laser[2]!r}")
     if name not in WORLDS:
         raise ValueError(f"unknown simulated world {name!r}; known: {', '.join(WORLDS)}")
     drive_rng, odom_rng, laser_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(3))
@@ -194,8 +216,8 @@ def simulate_world(name: str, seed: int, range_sigma_m: float = indoor.RANGE_SIG
         seed=int(seed),
         truth=truth[idx],
         odom=odom[idx],
-        ranges=_scan(truth[idx], world, laser_rng, range_sigma_m),
-        angles=indoor.beam_angles(),
-        range_max=indoor.RANGE_MAX_M,
+        ranges=_scan(truth[idx], world, laser_rng, range_sigma_m, angles, range_max),
+        angles=angles,
+        range_max=range_max,
         world=world,
     )
