@@ -96,7 +96,7 @@ def test_another_laser_is_simulated_and_has_its_own_section():
     assert np.array_equal(dense.truth, default.truth) and np.array_equal(dense.odom, default.odom)
     assert np.isclose(dense.angles[0], -np.radians(135.0)) and np.isclose(dense.angles[-1], np.radians(135.0))
     assert np.allclose(np.diff(dense.angles), np.radians(0.25))
-    ring = sim.laser_angles(360, 360.0)  # a full circle: no beam twice
+    ring = sim.laser_geometry((360, 360.0, 20.0))[0]  # a full circle: no beam twice
     assert np.isclose(ring[-1] - ring[0], np.radians(359.0))
     assert worlds.parse_laser("1081,270,30") == (1081, 270.0, 30.0) and worlds.parse_laser(None) is None
     part, title = worlds.section(["ring"], None, (1081, 270.0, 30.0))

@@ -279,17 +279,17 @@ def parse_laser(text: str | None) -> tuple | None:
     """``--laser BEAMS,FOV_DEG,RANGE_M`` (e.g. ``1081,270,30``) -> ``(beams, fov_deg, range_m)``."""
     if text is None:
         return None
+    from pf_slam_tools.sim.worlds import laser_geometry
+
     parts = text.split(",")
     try:
-        beams, fov, rmax = int(parts[0]), float(parts[1]), float(parts[2])
-    except (ValueError, IndexError):
+        if len(parts) != 3:
+            raise ValueError
+        laser = int(parts[0]), float(parts[1]), float(parts[2])
+    except ValueError:
         raise ValueError(f"--laser must be BEAMS,FOV_DEG,RANGE_M (e.g. 1081,270,30), got {text!r}") from None
-    if len(parts) != 3:
-        raise ValueError(f"--laser must be BEAMS,FOV_DEG,RANGE_M (e.g. 1081,270,30), got {text!r}")
-    from pf_slam_tools.sim.worlds import laser_angles
-
-    laser_angles(beams, fov)  # refuses a laser that cannot be
-    return beams, fov, rmax
+    laser_geometry(laser)  # refuses a laser that cannot be
+    return laser
 
 
 def check_noise(names, range_sigma_m: float | None, laser: tuple | None = None) -> None:
@@ -313,7 +313,9 @@ def section(names, range_sigma_m: float | None = None, laser: tuple | None = Non
     if names <= set(SIM_WORLDS) and (range_sigma_m is not None or laser is not None):
         what = [] if range_sigma_m is None else [f"range noise {100 * range_sigma_m:g} cm"]
         if laser is not None:
-            step = float(laser[1]) / (int(laser[0]) - (0 if float(laser[1]) == 360.0 else 1))
+            from pf_slam_tools.sim.worlds import laser_geometry
+
+            step = math.degrees(float(np.diff(laser_geometry(laser)[0][:2])[0]))
             what.append(f"a {int(laser[0])}-beam {float(laser[1]):g} deg laser ({step:.2g} deg), {float(laser[2]):g} m")
         return (
             "worlds_sim" + _noise_tag(range_sigma_m) + _laser_tag(laser),

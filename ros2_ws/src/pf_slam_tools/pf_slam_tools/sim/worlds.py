@@ -28,7 +28,7 @@ from .floor import CORRIDOR_M, floor_world
 from .indoor import SCAN_RATE_HZ, SIM_RATE_HZ, IndoorWorld, _box_corners, _loop_primitives, simulate_odometry
 from .paths import pose_on_path
 
-__all__ = ["SimDrive", "WORLDS", "corridors_world", "laser_angles", "simulate_world"]
+__all__ = ["SimDrive", "WORLDS", "corridors_world", "laser_geometry", "simulate_world"]
 
 
 @dataclass
@@ -180,14 +180,21 @@ def _ring(rng: np.random.Generator) -> tuple[IndoorWorld, np.ndarray]:
 WORLDS = {"office": _office, "corridors": _corridors, "ring": _ring}
 
 
-def laser_angles(beams: int, fov_deg: float) -> np.ndarray:
-    """``(beams,)`` beam angles (rad) spread evenly over ``fov_deg`` centred ahead (a full circle:
-    ``beams`` steps around it, no beam twice)."""
+def laser_geometry(laser: tuple | None) -> tuple[np.ndarray, float]:
+    """``(angles (B,) rad, range_max m)`` of ``laser`` ``(beams, fov_deg, range_max_m)``: the beams
+    spread evenly over ``fov_deg`` centred ahead (a full circle: ``beams`` steps around it, no beam
+    twice); None: the simulator's own (181 beams over 180 deg, 20 m). ValueError for a laser that
+    cannot be."""
+    if laser is None:
+        return indoor.beam_angles(), indoor.RANGE_MAX_M
+    beams, fov_deg, range_max = laser
     if not (isinstance(beams, int) and beams >= 2 and math.isfinite(fov_deg) and 0.0 < fov_deg <= 360.0):
         raise ValueError(f"a laser needs >= 2 beams over 0-360 deg, got {beams!r} beams over {fov_deg!r} deg")
+    if not (math.isfinite(range_max) and range_max > 1.0):
+        raise ValueError(f"the laser's range must be a finite number > 1 (m), got {range_max!r}")
     fov = math.radians(fov_deg)
     step = fov / beams if fov_deg == 360.0 else fov / (beams - 1)
-    return -0.5 * fov + step * np.arange(beams, dtype=np.float64)
+    return -0.5 * fov + step * np.arange(beams, dtype=np.float64), float(range_max)
 
 
 def simulate_world(
@@ -199,12 +206,7 @@ def simulate_world(
     beams over 180 deg, 20 m)."""
     if not (math.isfinite(range_sigma_m) and range_sigma_m >= 0):
         raise ValueError(f"range_sigma_m must be a finite number >= 0 (m), got {range_sigma_m!r}")
-    if laser is None:
-        angles, range_max = indoor.beam_angles(), indoor.RANGE_MAX_M
-    else:
-        angles, range_max = laser_angles(int(laser[0]), float(laser[1])), float(laser[2])
-        if not (math.isfinite(range_max) and range_max > 1.0):
-            raise ValueError(f"the laser's range must be a finite number > 1 (m), got {laser[2]!r}")
+    angles, range_max = laser_geometry(laser)
     if name not in WORLDS:
         raise ValueError(f"unknown simulated world {name!r}; known: {', '.join(WORLDS)}")
     drive_rng, odom_rng, laser_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(3))
