@@ -54,6 +54,16 @@ def test_provenance_names_a_machine_and_a_commit():
     assert rev == "unknown" or len(rev.split()[0]) == 12
 
 
+def test_cpu_name_tells_apart_machines_of_one_model_name():
+    """Two VMs both called 'AMD EPYC': the family, model and vector unit say which is which."""
+    zen3 = "processor\t: 0\ncpu family\t: 25\nmodel\t\t: 1\nmodel name\t: AMD EPYC\nflags\t\t: fpu sse2 avx2 fma\n\n"
+    zen4 = zen3.replace("model\t\t: 1", "model\t\t: 17").replace("avx2 fma", "avx2 fma avx512f avx512bw")
+    assert results.cpu_name(zen3 + zen4) == "AMD EPYC (family 25 model 1, AVX2)"  # the first processor
+    assert results.cpu_name(zen4) == "AMD EPYC (family 25 model 17, AVX-512)"
+    assert results.cpu_name("model name\t: Some CPU\n") == "Some CPU"  # nothing else known
+    assert results.cpu_name("processor\t: 0\nflags\t: fpu\n") == ""  # no name: the caller's fallback
+
+
 def test_commit_says_when_tracked_files_differ_from_head(tmp_path):
     def git(*a):
         subprocess.run(["git", *a], cwd=tmp_path, check=True, capture_output=True)

@@ -1,7 +1,8 @@
 """docs/results.md, written by the benchmarks themselves: each bench replaces its own section.
 
 A section sits between ``<!-- bench:NAME -->`` and ``<!-- /bench:NAME -->`` and holds the
-bench's table with where it was measured: the machine (CPU model, cores, memory), the command
+bench's table with where it was measured: the machine (CPU model with its family and vector unit, cores,
+memory), the command
 line and the commit (``+ uncommitted changes`` when the tree was dirty). Nobody edits the
 numbers by hand; a bench run with ``--results FILE`` rewrites its section and leaves the rest.
 """
@@ -17,14 +18,36 @@ import sys
 from pathlib import Path
 
 
+def cpu_name(cpuinfo: str) -> str:
+    """The first processor of a ``/proc/cpuinfo`` text: its model name, then family, model and
+    the widest vector unit (``'AMD EPYC (family 25 model 1, AVX2)'``). A VM's model name can be
+    as bare as that, while two VMs of the same name differ by 1.5-2x in speed and in the SIMD
+    kernels numpy and OpenCV choose (which move the chaotic filter's trajectories by centimetres:
+    docs/architecture.md, "Why it is deterministic"); '' when the text names no processor."""
+    info: dict[str, str] = {}
+    for line in cpuinfo.splitlines():
+        if not line.strip():
+            if info:
+                break  # the first processor only
+            continue
+        key, _, value = line.partition(":")
+        info.setdefault(key.strip(), value.strip())
+    name = info.get("model name", "")
+    if not name:
+        return ""
+    flags = set(info.get("flags", "").split())
+    simd = "AVX-512" if "avx512f" in flags else "AVX2" if "avx2" in flags else "no AVX2" if flags else ""
+    detail = [f"family {info['cpu family']} model {info['model']}"] if "cpu family" in info and "model" in info else []
+    detail += [simd] if simd else []
+    return f"{name} ({', '.join(detail)})" if detail else name
+
+
 def machine() -> str:
-    """'Intel(R) Xeon(R) ... , 2 cores, 24 GiB, Linux 6.1' (from /proc where there is one)."""
+    """'AMD EPYC (family 25 model 1, AVX2), 2 cores, 24 GiB, Linux 6.1' (from /proc where there
+    is one)."""
     cpu = platform.processor() or platform.machine()
     try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
+        cpu = cpu_name(Path("/proc/cpuinfo").read_text()) or cpu
     except OSError:
         pass
     mem = ""
