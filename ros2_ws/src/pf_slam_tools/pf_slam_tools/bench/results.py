@@ -1,10 +1,10 @@
 """docs/results.md, written by the benchmarks themselves: each bench replaces its own section.
 
 A section sits between ``<!-- bench:NAME -->`` and ``<!-- /bench:NAME -->`` and holds the
-bench's table with where it was measured: the machine (CPU model with its family and vector unit, cores,
-memory), the command
-line and the commit (``+ uncommitted changes`` when the tree was dirty). Nobody edits the
-numbers by hand; a bench run with ``--results FILE`` rewrites its section and leaves the rest.
+bench's table with where it was measured: the machine (CPU model with its family and vector
+unit, cores, memory), the command line and the commit (``+ uncommitted changes`` when the tree
+was dirty). Nobody edits the numbers by hand; a bench run with ``--results FILE`` rewrites its
+section and leaves the rest.
 """
 
 from __future__ import annotations
@@ -21,9 +21,10 @@ from pathlib import Path
 def cpu_name(cpuinfo: str) -> str:
     """The first processor of a ``/proc/cpuinfo`` text: its model name, then family, model and
     the widest vector unit (``'AMD EPYC (family 25 model 1, AVX2)'``). A VM's model name can be
-    as bare as that, while two VMs of the same name differ by 1.5-2x in speed and in the SIMD
-    kernels numpy and OpenCV choose (which move the chaotic filter's trajectories by centimetres:
-    docs/architecture.md, "Why it is deterministic"); '' when the text names no processor."""
+    as bare as that, while two VMs of the same name can differ by 1.5-2x in speed and in the SIMD
+    kernels numpy and OpenCV choose (which can move the chaotic filter's trajectories by
+    centimetres: docs/architecture.md, "Why it is deterministic"); '' when the text names no
+    processor."""
     info: dict[str, str] = {}
     for line in cpuinfo.splitlines():
         if not line.strip():
