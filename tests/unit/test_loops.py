@@ -14,6 +14,7 @@ from pf_slam_nodes.core.config import (
     CorrelationConfig,
     FilterConfig,
     GridConfig,
+    LaserConfig,
     LoopClosureConfig,
     ResampleConfig,
 )
@@ -422,3 +423,96 @@ def test_the_travel_before_the_scale_applied_is_rescaled_to_it():
     truth, filt, odom, _ = _street_drive(80, 0.993, 30, 0.993, 1.0)
     ones = np.ones(len(truth))
     assert np.array_equal(_closer(True, filt, odom, ones).corrections(keys), off.corrections(keys))
+
+
+def _corridor_scan(rng: np.random.Generator, pose_x: float, posts: np.ndarray) -> np.ndarray:
+    """What a 181-beam, 180-degree laser at ``(pose_x, 0, 0)`` sees of a corridor along x with
+    walls 2 m either side (the beams' angles offset at random by up to half a beam, so their ends
+    fall anywhere along the walls) and ``posts`` (centres ``(P, 2)``, 0.15 m radius, as points):
+    what lies ahead within 20 m, in its frame, 1 cm of noise."""
+    th = np.radians(np.linspace(-90.0, 90.0, 181) + rng.uniform(-0.5, 0.5))
+    th = th[np.abs(np.tan(th)) > 0.1]
+    wall = np.stack([2.0 / np.abs(np.tan(th)), np.sign(th) * 2.0], 1)
+    a = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    pts = [wall] + [np.stack([px - pose_x + 0.15 * np.cos(a), py + 0.15 * np.sin(a)], 1) for px, py in posts]
+    local = np.concatenate(pts)
+    local = local[(local[:, 0] > 0.0) & (np.hypot(local[:, 0], local[:, 1]) < 20.0)]
+    return local + rng.normal(scale=0.01, size=local.shape)
+
+
+def _pairs_closer(
+    stretch: float, posts: bool, baseline: float, noise: float = math.nan, min_noise: float = 0.0
+) -> tuple[LoopCloser, np.ndarray, np.ndarray]:
+    """100 m along the corridor in 0.5 m steps, with (``posts``) a post every 2.5-4.5 m on
+    alternate sides; the filter's poses stretched along it by ``stretch`` (its matches ran
+    ahead), each keyframe's points as seen from the true pose, its laser's noise ``noise``.
+    Returns (closer, truth, filter poses)."""
+    rng = np.random.default_rng(3)
+    px = np.cumsum(rng.uniform(2.5, 4.5, 40)) if posts else np.zeros(0)
+    centres = np.stack([px, np.where(np.arange(px.size) % 2 == 0, 1.6, -1.6)], 1)
+    truth = np.stack([np.arange(0.0, 100.0, 0.5), np.zeros(200), np.zeros(200)], 1)
+    filt = truth * np.array([stretch, 1.0, 1.0])
+    cfg = LoopClosureConfig(enabled=True, min_loop_travel_m=1e4, pair_baseline_m=baseline, pair_min_noise_m=min_noise)
+    lc = LoopCloser(cfg)
+    for k, (t, f) in enumerate(zip(truth, filt)):
+        local = _corridor_scan(rng, t[0], centres)
+        lc.add(float(k), f, local, scan_polygon(np.zeros(2), local), noise=noise)
+    return lc, truth, filt
+
+
+def test_scan_pairs_take_the_stretch_out_of_the_final_trajectory():
+    """loops.pair_baseline_m: the filter ran 1 % ahead along a corridor with posts (nothing a
+    loop could see). The scan pairs measure the keyframes' true travel, and the final solve
+    brings the stretch down to a fraction of a percent; without pairs (or before the end) the
+    chain is the filter's."""
+    keys = np.arange(200, dtype=float)
+    lc, truth, filt = _pairs_closer(1.01, True, 4.0)
+    assert np.abs(lc.corrections(keys)).max() < 1e-9  # during the run: the filter's chain
+    n = lc.add_pair_edges()
+    assert n > 0.8 * (len(lc) - 5)  # nearly every keyframe 4 m on measures its travel
+    assert lc.add_pair_edges() == n  # once per run
+    final = compose(lc.corrections(keys), filt)
+    before = filt[-1, 0] - truth[-1, 0]
+    after = final[-1, 0] - truth[-1, 0]
+    assert before > 0.98 and abs(after) < 0.3 * before
+    assert np.abs(final[:, 1]).max() < 0.01 and np.abs(final[:, 2]).max() < 1e-3  # nothing across or in yaw
+    # off: no pair, the filter's chain
+    off, _, _ = _pairs_closer(1.01, True, 0.0)
+    assert off.add_pair_edges() == 0 and np.abs(off.corrections(keys)).max() < 1e-9
+
+
+def test_scan_pairs_measure_nothing_in_a_featureless_corridor():
+    """Walls alone fit at every shift along the corridor: no pair is kept, the chain is the filter's."""
+    lc, _, _ = _pairs_closer(1.01, False, 4.0)
+    assert lc.add_pair_edges() == 0
+    assert np.abs(lc.corrections(np.arange(200, dtype=float))).max() < 1e-9
+
+
+def test_scan_pairs_only_where_the_laser_is_noisy():
+    """loops.pair_min_noise_m: keyframes whose laser noise is below it (or not known) are not
+    paired; at or above it, the same pairs as without the gate."""
+    n_all = _pairs_closer(1.01, True, 4.0)[0].add_pair_edges()
+    assert _pairs_closer(1.01, True, 4.0, noise=0.03, min_noise=0.015)[0].add_pair_edges() == n_all > 0
+    assert _pairs_closer(1.01, True, 4.0, noise=0.006, min_noise=0.015)[0].add_pair_edges() == 0
+    assert _pairs_closer(1.01, True, 4.0, noise=math.nan, min_noise=0.015)[0].add_pair_edges() == 0
+
+
+@pytest.mark.parametrize("smooth", [2, 0])
+def test_the_mapping_stage_keeps_each_keyframes_laser_noise_and_pairs_at_the_end(smooth):
+    """loops.pair_min_noise_m: the mapper keeps each keyframe's laser noise as measured before any
+    smoothing (the smoothing's own estimate, or the scan's when it does not smooth); its finish()
+    adds the scan-pair edges before the last solve."""
+    pytest.importorskip("pf_slam_tools")
+    rng = np.random.default_rng(5)
+    loop_cfg = LoopClosureConfig(enabled=True, min_loop_travel_m=1e4, pair_baseline_m=2.0, pair_min_noise_m=0.015)
+    stage = MappingStage(
+        FilterConfig(), GridConfig(size_x_m=20, size_y_m=20), LaserConfig(smooth_beams=smooth), loop_cfg
+    )
+    for k, x in enumerate(np.arange(3.0, 9.0, 0.25)):
+        pose = np.array([x, 4.0, 0.0])
+        r, a = _ray_room(pose, n_beams=361)
+        stage.integrate(pose, r + rng.normal(scale=0.03, size=r.shape), a, 0.0, 20.0, key=float(k))
+    noise = np.asarray(stage.loops.noise)
+    assert len(noise) >= 5 and np.all((noise > 0.02) & (noise < 0.04))  # the 3 cm laser, not the smoothed scan
+    stage.finish()
+    assert len(stage.loops.pairs) > 0

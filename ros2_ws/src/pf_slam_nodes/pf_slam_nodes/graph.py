@@ -404,7 +404,9 @@ def run_cli(args: Any, log: Callable[[str], None] = print) -> int:
         )
         log(
             f"loop closure: {lc['closed']} loops closed over {lc['keyframes']} keyframes ({lc['rejected']} matches "
-            f"refused, {lc['dropped']} dropped by the graph), map re-rendered {lc['map_renders']}x{frames}"
+            f"refused, {lc['dropped']} dropped by the graph)"
+            + (f", {lc['pair_edges']} scan-pair edges in the final solve" if lc.get("pair_edges") else "")
+            + f", map re-rendered {lc['map_renders']}x{frames}"
         )
     if g := s.get("gyro"):
         log(gyro_line(g))

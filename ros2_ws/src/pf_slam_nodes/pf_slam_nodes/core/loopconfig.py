@@ -75,6 +75,19 @@ class LoopClosureConfig(_ConfigBase):
     scale_early_travel : bool
         The travel before ``correlation.odom_scale`` first applied is rescaled in the graph to the
         latest scale x the odometry's travel there (core/loops.py); nothing while that scale is 1.
+    pair_baseline_m : float
+        At the end of the run, each keyframe's scan is matched against the keyframe this much
+        travel (m) back by the symmetric scan-pair cost (core/scanpair.py) and the travel it
+        measures joins the graph as an edge along the direction of travel, for the final solve
+        (the final trajectory and map); 0: off.
+    pair_sigma_m : float
+        Std (m) of such an edge.
+    pair_reach_margin_m : float
+        A pair uses the points of each scan within ``max_range_m`` less this (m) of the other's pose.
+    pair_min_noise_m : float
+        Only keyframes whose laser noise (the scan's own estimate, core/scan.py ``range_noise``) is
+        at least this (m) are paired: a noisy laser's walls pull the filter's matches ahead, a
+        precise one's chain is better than a pair (0: every keyframe).
     """
 
     enabled: bool = False
@@ -111,6 +124,10 @@ class LoopClosureConfig(_ConfigBase):
     max_chi2: float = 30.0
     rebuild_m: float = 0.3
     scale_early_travel: bool = True
+    pair_baseline_m: float = 0.0
+    pair_sigma_m: float = 0.03
+    pair_reach_margin_m: float = 3.0
+    pair_min_noise_m: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("enabled", "scale_early_travel"):
@@ -120,12 +137,13 @@ class LoopClosureConfig(_ConfigBase):
             *("keyframe_m", "keyframe_rad", "submap_m", "loop_every_m", "window_max_m", "window_rad"),
             *("resolution_m", "coarse_m", "sigma_m", "max_range_m", "ambiguity_m", "cauchy", "max_chi2"),
             *("seq_sigma_xy_m", "seq_sigma_rad", "loop_sigma_xy_m", "loop_sigma_rad"),
-            *("look_elsewhere_m", "look_elsewhere_rad"),
+            *("look_elsewhere_m", "look_elsewhere_rad", "pair_sigma_m"),
         ):
             _check_pos(name, getattr(self, name))
         for name in (
             *("min_loop_travel_m", "window_min_m", "window_per_m", "min_margin", "rebuild_m", "look_elsewhere"),
             *("seq_sigma_xy_per_m", "seq_sigma_lateral_per_m", "seq_sigma_rad_per_m"),
+            *("pair_baseline_m", "pair_reach_margin_m", "pair_min_noise_m"),
         ):
             _check_nonneg(name, getattr(self, name))
         for name, least in (("max_points", 30), ("candidates", 1)):

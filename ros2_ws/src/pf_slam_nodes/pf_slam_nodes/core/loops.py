@@ -33,6 +33,14 @@ by ``latest scale x odometry travel / filter travel`` over that stretch (what th
 corrected is not corrected twice), at every solve, so the final trajectory and map follow the
 latest estimate.
 
+Scan pairs (``loops.pair_baseline_m``): the filter's relative poses can be biased along the
+direction of travel (a noisy laser's walls pull the matches ahead, the map follows the
+odometry's scale along a street), and a closed loop cannot see it: a loop stretched by the same
+factor everywhere still closes. At the end of the run each keyframe's scan is matched against the
+keyframe ``pair_baseline_m`` of travel back by the symmetric scan-to-scan cost of
+core/scanpair.py, which follows neither the map nor the odometry, and each pair that measures its
+travel joins the final solve as an edge along the direction of travel.
+
 Frames: the poses given to :meth:`LoopCloser.add` are the filter's in one fixed frame, the *raw*
 frame (the stages keep the filter's own frame changes out of it: core/stages.py). The
 corrections map raw poses into the optimised frame.
@@ -48,11 +56,13 @@ import math
 import cv2
 import numpy as np
 
+from .config import CorrelationConfig
 from .deferred import Offload, inline
 from .geometry import compose, relative_pose, wrap_angle
 from .loopconfig import LoopClosureConfig
 from .posegraph import edge_errors, optimize
 from .scan import transform_points, transform_points_batch
+from .scanpair import PairScan, pair_scan, pair_travel
 
 #: a match's weakest direction is trusted as much as the others when its score falls by
 #: ``min_margin`` or more within ``ambiguity_m / 2`` along it; its std grows as the fall shrinks,
@@ -68,6 +78,15 @@ AGREES_CHI2 = 1.0
 #: farther than this from 1 (the filter's travel there is not the odometry's scaled: a slide, a
 #: recovery)
 EARLY_SCALE_MAX = 0.03
+
+#: scan pairs (``pair_baseline_m``): the along-track search is +- 2 x this share of the travel (at
+#: least 0.2 m), a pair counts where its cost has a clear minimum (second difference per m^2, as
+#: ``correlation.odom_scale_min_curvature``), each scan's field reaches this many ``sigma_m`` and
+#: joins neighbouring beams' ends up to this far apart (m) by lines
+PAIR_MAX_ERROR = 0.03
+PAIR_MIN_CURVATURE = 1000.0
+PAIR_FIELD_SIGMAS = 6.0
+PAIR_FILL_M = 2.0
 
 
 @dataclasses.dataclass
@@ -293,7 +312,8 @@ class LoopCloser:
         self.raw: list[np.ndarray] = []  # ... the filter's pose (raw frame) ...
         self.travel: list[float] = []  # ... travel so far (m) ...
         self.points: list[np.ndarray] = []  # ... scan points (own frame, voxel-filtered) ...
-        self.polys: list[np.ndarray] = []  # ... free-space polygon (own frame)
+        self.polys: list[np.ndarray] = []  # ... free-space polygon (own frame) ...
+        self.noise: list[float] = []  # ... and its laser's range noise (m; NaN: not known)
         self.scale = 1.0  # the odometry scale applied to the latest keyframe's set
         # scale_early_travel: the keyframes' odometry poses (None: not given) while no set was scaled;
         # from the first scaled keyframe on, that stretch once: (edges, odometry travel, filter travel)
@@ -312,6 +332,7 @@ class LoopCloser:
         self._last_attempt = -math.inf
         self._last_loop = 0.0
         self._unsolved = False  # loop edges added since the last solve
+        self.pairs: list[tuple[int, int, np.ndarray, np.ndarray]] = []  # scan-pair edges (ref, cur, z, info)
 
     def __len__(self) -> int:
         return len(self.raw)
@@ -324,12 +345,14 @@ class LoopCloser:
         polygon: np.ndarray,
         odom: np.ndarray | None = None,
         scale: float = 1.0,
+        noise: float = math.nan,
     ) -> bool:
         """A corrected scan: its stamp (any increasing time key), the filter's pose (raw frame),
         its points and free-space polygon (:func:`scan_polygon`) in its own frame, its odometry
         pose and the odometry scale its set was predicted with (``correlation.odom_scale``; for
-        ``scale_early_travel``). True when the scan closed a loop (the optimised poses changed)."""
-        return self.observe(pose) and self.add_keyframe(stamp, pose, points, polygon, odom, scale)
+        ``scale_early_travel``), its laser's range noise (m; for ``pair_min_noise_m``). True when
+        the scan closed a loop (the optimised poses changed)."""
+        return self.observe(pose) and self.add_keyframe(stamp, pose, points, polygon, odom, scale, noise)
 
     def observe(self, pose: np.ndarray) -> bool:
         """A corrected scan's pose (raw frame): True when it is to be a keyframe (then give it
@@ -352,9 +375,10 @@ class LoopCloser:
         polygon: np.ndarray,
         odom: np.ndarray | None = None,
         scale: float = 1.0,
+        noise: float = math.nan,
     ) -> bool:
         """The keyframe :meth:`observe` asked for; True when it closed a loop."""
-        self.start_keyframe(stamp, pose, points, polygon, odom, scale)
+        self.start_keyframe(stamp, pose, points, polygon, odom, scale, noise)
         return self.finish_keyframe()
 
     @property
@@ -387,6 +411,7 @@ class LoopCloser:
         polygon: np.ndarray,
         odom: np.ndarray | None = None,
         scale: float = 1.0,
+        noise: float = math.nan,
     ) -> None:
         """The keyframe :meth:`observe` asked for, and its loop match sent if one is due (then
         :meth:`finish_keyframe` before anything else)."""
@@ -401,6 +426,7 @@ class LoopCloser:
         self.travel.append(self._travel)
         self.points.append(_voxel(pts, cfg.resolution_m))
         self.polys.append(np.asarray(polygon, dtype=np.float64).reshape(-1, 2))
+        self.noise.append(float(noise))
         if self._early_odom is not None:
             self._early_stretch(odom, float(scale))
         if float(scale) != self.scale:
@@ -539,6 +565,58 @@ class LoopCloser:
             z[:m, :2] *= factor
         return z
 
+    def add_pair_edges(self) -> int:
+        """End of the run (``pair_baseline_m`` > 0): each keyframe's scan matched against the newest
+        keyframe at least ``pair_baseline_m`` of travel back (:func:`~.scanpair.pair_travel`: the
+        symmetric scan-to-scan cost, at the filter's relative pose); each pair that measures its
+        travel is an edge along the direction of travel (std ``pair_sigma_m``; nothing across it or
+        in yaw), robust like the loop edges; both keyframes' laser noise at least
+        ``pair_min_noise_m``. Solved at the next read of the corrections. Once per
+        run; returns the number of pair edges."""
+        cfg = self.cfg
+        if cfg.pair_baseline_m <= 0.0 or self.pairs or len(self.raw) < 2:
+            return len(self.pairs)
+        raw, travel = np.asarray(self.raw), np.asarray(self.travel)
+        field_cfg = CorrelationConfig(sigma_m=cfg.sigma_m, max_distance_m=PAIR_FIELD_SIGMAS * cfg.sigma_m)
+        back = np.searchsorted(travel, travel - cfg.pair_baseline_m, side="right") - 1
+        with np.errstate(invalid="ignore"):
+            noisy = np.asarray(self.noise) >= cfg.pair_min_noise_m  # NaN: not known, paired only at 0
+        noisy |= cfg.pair_min_noise_m <= 0.0
+        scans: dict[int, PairScan | None] = {}  # the fields of the keyframes still to be paired
+
+        def scan(m: int) -> PairScan | None:
+            if m not in scans:
+                scans[m] = pair_scan(raw[m], self.points[m], cfg.resolution_m, field_cfg, PAIR_FILL_M)
+            return scans[m]
+
+        for k in range(1, len(raw)):
+            ref = int(back[k])
+            for m in [m for m in scans if m < ref]:
+                del scans[m]
+            if ref < 0 or not (noisy[ref] and noisy[k]) or scan(ref) is None or scan(k) is None:
+                continue
+            got = pair_travel(
+                scans[ref],
+                scans[k],
+                PAIR_MAX_ERROR,
+                PAIR_MIN_CURVATURE,
+                cfg.max_range_m,
+                cfg.pair_reach_margin_m,
+            )
+            if got is None:
+                continue
+            dist, measured = got
+            z = relative_pose(raw[ref], raw[k])
+            u = z[:2] / dist
+            z[:2] += (measured - dist) * u
+            c, s = math.cos(z[2]), math.sin(z[2])
+            uz = np.array([c * u[0] + s * u[1], -s * u[0] + c * u[1]])  # in z's frame, as the edge's error
+            info = np.zeros((3, 3))
+            info[:2, :2] = np.outer(uz, uz) / cfg.pair_sigma_m**2
+            self.pairs.append((ref, k, z, info))
+        self._unsolved = self._unsolved or bool(self.pairs)
+        return len(self.pairs)
+
     def _solve(self) -> None:
         self._unsolved = False
         cfg = self.cfg
@@ -558,14 +636,20 @@ class LoopCloser:
         info_seq[:, 2, 2] = (cfg.seq_sigma_rad + cfg.seq_sigma_rad_per_m * dist) ** -2
         x = self.opt
         for _ in range(3):  # drop the loop edges the solution disagrees with, then solve again
-            e = self.loops
-            i = np.concatenate([np.arange(n - 1), [a.ref for a in e]]).astype(np.int64)
-            j = np.concatenate([np.arange(1, n), [a.cur for a in e]]).astype(np.int64)
-            z = np.vstack([z_seq, *(a.z[None] for a in e)])
-            info = np.concatenate([info_seq, np.array([a.info for a in e]).reshape(-1, 3, 3)])
+            e, p = self.loops, self.pairs
+            i = np.concatenate([np.arange(n - 1), [a.ref for a in e], [q[0] for q in p]]).astype(np.int64)
+            j = np.concatenate([np.arange(1, n), [a.cur for a in e], [q[1] for q in p]]).astype(np.int64)
+            z = np.vstack([z_seq, *(a.z[None] for a in e), *(q[2][None] for q in p)])
+            info = np.concatenate(
+                [
+                    info_seq,
+                    np.array([a.info for a in e]).reshape(-1, 3, 3),
+                    np.array([q[3] for q in p]).reshape(-1, 3, 3),
+                ]
+            )
             robust = np.arange(i.size) >= n - 1
             x, chi2 = optimize(self.opt, i, j, z, info, robust, cfg.cauchy)
-            bad = chi2[n - 1 :] > cfg.max_chi2
+            bad = chi2[n - 1 : n - 1 + len(e)] > cfg.max_chi2
             if not bad.any():
                 break
             self.dropped += int(bad.sum())

@@ -377,9 +377,11 @@ class NoiseTally:
     def __init__(self) -> None:
         self.counts = {"smoothed": 0, "precise": 0, "rounded": 0, "unknown": 0}
         self.noise: list[float] = []
+        self.last = math.nan  # the latest scan's noise
 
     def add(self, noise: float, verdict: str) -> None:
         self.counts[verdict] += 1
+        self.last = noise
         if math.isfinite(noise):
             self.noise.append(noise)
 

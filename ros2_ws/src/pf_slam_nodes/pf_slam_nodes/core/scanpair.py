@@ -27,6 +27,7 @@ import collections
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from .config import CorrelationConfig
@@ -58,19 +59,28 @@ class PairScan:
     field: LikelihoodField
 
 
-def pair_scan(odom: np.ndarray, points: np.ndarray, resolution: float, cfg: CorrelationConfig) -> PairScan | None:
+def pair_scan(
+    odom: np.ndarray, points: np.ndarray, resolution: float, cfg: CorrelationConfig, fill_m: float = 0.0
+) -> PairScan | None:
     """A scan ready for pairing (its field over the points' bounding box), or None if it has fewer
-    than ``MIN_POINTS`` points."""
+    than ``MIN_POINTS`` points. ``fill_m`` > 0: the points are in beam order and consecutive ones
+    at most this far apart (m) are joined by a line in the field, so that a wall is a wall however
+    sparsely its beam ends fall (a field of dots with gaps pulls the scans' dense near parts
+    together: a bare corridor then measures a short travel)."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     if pts.shape[0] < MIN_POINTS:
         return None
     margin = cfg.max_distance_m + resolution
     lo = pts.min(axis=0) - margin
     w, h = np.ceil((pts.max(axis=0) + margin - lo) / resolution).astype(int)
-    mask = np.zeros((h, w), dtype=bool)
+    mask = np.zeros((h, w), dtype=np.uint8)
     cells = np.floor((pts - lo) / resolution).astype(np.int64)
-    mask[cells[:, 1], cells[:, 0]] = True
-    field = build_likelihood_field_from_mask(mask, resolution, lo, cfg)
+    mask[cells[:, 1], cells[:, 0]] = 1
+    if fill_m > 0.0:
+        near = np.hypot(*np.diff(pts, axis=0).T) <= fill_m
+        segs = np.stack([cells[:-1][near], cells[1:][near]], axis=1).astype(np.int32)
+        cv2.polylines(mask, list(segs), False, 1)
+    field = build_likelihood_field_from_mask(mask.astype(bool), resolution, lo, cfg)
     return PairScan(np.asarray(odom, dtype=np.float64).reshape(3).copy(), pts, field)
 
 
@@ -85,17 +95,23 @@ def _profile(rel, u, v, along, cross, new_pts, old_pts, old: PairScan, new: Pair
 
 
 def pair_travel(
-    old: PairScan, new: PairScan, max_error: float, min_curvature: float, range_max_m: float
+    old: PairScan,
+    new: PairScan,
+    max_error: float,
+    min_curvature: float,
+    range_max_m: float,
+    reach_margin_m: float = REACH_MARGIN_M,
 ) -> tuple[float, float] | None:
     """``(odometry travel, measured travel)`` between two scans (m, the chord), or None where the
     pair measures nothing: the scans too close, too few points both can see, or no clear minimum
     of the cost along the street within ``+- 2 max_error`` of the travel (at least 0.2 m).
-    ``range_max_m``: the range the scans were cut at."""
+    ``range_max_m``: the range the scans were cut at; each scan's points within that less
+    ``reach_margin_m`` of the other's pose are used."""
     rel = relative_pose(old.odom, new.odom)  # the new pose in the old scan's frame, by odometry
     dist = float(math.hypot(rel[0], rel[1]))
     if dist < 1.0:
         return None
-    reach = range_max_m - REACH_MARGIN_M
+    reach = range_max_m - reach_margin_m
     u = rel[:2] / dist
     v = np.array([-u[1], u[0]])
     in_old = transform_points(new.points, rel)

@@ -47,6 +47,7 @@ from .recovery import Recovery
 from .scan import (
     NoiseTally,
     planar_scan,
+    range_noise,
     scan_to_points,
     shadow_beams,
     shadow_neighbours,
@@ -526,6 +527,9 @@ class MappingStage:
         self._occ: np.ndarray | None = None  # int8 occupancy of the whole grid, kept current
         self.clock = StageClock()  # "map": ray tracing + log-odds + the patch; "loops": the back end
         self.loops = LoopCloser(self.loop_cfg, offload) if self.loop_cfg.enabled else None
+        # loops.pair_min_noise_m: each scan's laser noise as the smoothing estimated it
+        gate = self.loops is not None and self.loop_cfg.pair_min_noise_m > 0.0
+        self._noise = NoiseTally() if gate and self.laser_cfg.smooth_beams else None
         self._open: MapPatch | None = None  # start_integrate's patch, while its loop match runs
         self._scans: list[tuple] = []  # loops: (key, raw pose, scan) of every integrated scan
         self.frame = np.zeros(3)  # loops: the filter's frame in the raw frame
@@ -588,7 +592,7 @@ class MappingStage:
             self.frame, self._pending_frame = self._pending_frame, None
             self.frames.append((float(key), self.frame.copy()))
         planar = scan_in_base(
-            ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset, range_min, range_max, extrinsic
+            ranges, angles, self.laser_cfg, self.filter_cfg.sensor_offset, range_min, range_max, extrinsic, self._noise
         )
         self._open = self._integrate(pose, planar, range_min, range_max)
         self.clock.add("map", t0)
@@ -629,7 +633,10 @@ class MappingStage:
         ends = np.where(np.isfinite(r[ok]) & (r[ok] <= reach), r[ok], reach)
         ends = transform_points(np.stack([ends * np.cos(a[ok]), ends * np.sin(a[ok])], axis=1), offset)
         poly = scan_polygon(offset[:2], ends, max(1, ends.shape[0] // 180))
-        self.loops.start_keyframe(key, raw, pts, poly, odom, odom_scale)
+        noise = math.nan  # the keyframe's laser noise, before any smoothing (loops.pair_min_noise_m)
+        if self.loop_cfg.pair_min_noise_m > 0.0:
+            noise = self._noise.last if self._noise is not None else range_noise(r, a)
+        self.loops.start_keyframe(key, raw, pts, poly, odom, odom_scale, noise)
 
     def _rebuilt(self) -> MapPatch:
         """A closed loop moved the keyframes: the map re-rendered from the optimised poses, whole,
@@ -658,11 +665,16 @@ class MappingStage:
         return corr
 
     def finish(self) -> bool:
-        """End of the run: the map re-rendered with the final corrections if any keyframe moved
-        by more than half a cell since it was built. True if it was."""
-        if self.loops is None or not self._scans or self.loops.map_shift() <= 0.5 * self.grid_cfg.resolution_m:
+        """End of the run: the scan-pair edges added to the loop closure's graph
+        (``loops.pair_baseline_m``), then the map re-rendered with the final corrections if any
+        keyframe moved by more than half a cell since it was built. True if it was."""
+        if self.loops is None or not self._scans:
             return False
         t0 = time.perf_counter()
+        self.loops.add_pair_edges()
+        if self.loops.map_shift() <= 0.5 * self.grid_cfg.resolution_m:
+            self.clock.add("loops", t0)
+            return False
         self._render()
         self.clock.add("loops", t0)
         return True

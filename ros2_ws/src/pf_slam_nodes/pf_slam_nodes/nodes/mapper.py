@@ -217,6 +217,7 @@ class Mapper(Node):
                 "closed": len(lc.loops),
                 "rejected": lc.rejected,
                 "dropped": lc.dropped,
+                "pair_edges": len(lc.pairs),  # loops.pair_baseline_m: scan-pair edges of the final solve
                 "map_renders": self.stage.rebuilds,
                 "loop_trajectories": self.loop_trajectories,  # pf_slam/loop_trajectory messages
                 "matched_in": lc.matcher.kind,  # "process" (worker: process) or "inline" (in the node)
