@@ -527,9 +527,11 @@ class MappingStage:
         self._occ: np.ndarray | None = None  # int8 occupancy of the whole grid, kept current
         self.clock = StageClock()  # "map": ray tracing + log-odds + the patch; "loops": the back end
         self.loops = LoopCloser(self.loop_cfg, offload) if self.loop_cfg.enabled else None
-        # loops.pair_min_noise_m: each scan's laser noise as the smoothing estimated it
-        gate = self.loops is not None and self.loop_cfg.pair_min_noise_m > 0.0
-        self._noise = NoiseTally() if gate and self.laser_cfg.smooth_beams else None
+        # the scan pairs' noise gate (loops.pair_baseline_m, pair_min_noise_m): each keyframe's laser
+        # noise, from the smoothing's own estimate where it smooths
+        lc = self.loop_cfg
+        self._pair_gate = self.loops is not None and lc.pair_baseline_m > 0.0 and lc.pair_min_noise_m > 0.0
+        self._noise = NoiseTally() if self._pair_gate and self.laser_cfg.smooth_beams else None
         self._open: MapPatch | None = None  # start_integrate's patch, while its loop match runs
         self._scans: list[tuple] = []  # loops: (key, raw pose, scan) of every integrated scan
         self.frame = np.zeros(3)  # loops: the filter's frame in the raw frame
@@ -633,8 +635,8 @@ class MappingStage:
         ends = np.where(np.isfinite(r[ok]) & (r[ok] <= reach), r[ok], reach)
         ends = transform_points(np.stack([ends * np.cos(a[ok]), ends * np.sin(a[ok])], axis=1), offset)
         poly = scan_polygon(offset[:2], ends, max(1, ends.shape[0] // 180))
-        noise = math.nan  # the keyframe's laser noise, before any smoothing (loops.pair_min_noise_m)
-        if self.loop_cfg.pair_min_noise_m > 0.0:
+        noise = math.nan  # the keyframe's laser noise, before any smoothing (the scan pairs' gate)
+        if self._pair_gate:
             noise = self._noise.last if self._noise is not None else range_noise(r, a)
         self.loops.start_keyframe(key, raw, pts, poly, odom, odom_scale, noise)
 
