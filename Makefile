@@ -31,7 +31,7 @@ bench: setup   ## prints tables (also written to runs/bench/carmen*.md and docs/
 	$(BIN)/pf-slam bench worlds --data ../shared/data --out runs/bench --seeds 0 1 2 3 4 5 6 7 8 9 --results docs/results.md \
 	    --datasets acapulco belgioioso edmonton fhw freiburg-101 freiburg-campus orebro seattle
 	$(BIN)/pf-slam bench worlds --data ../shared/data --out runs/bench --seeds 0 1 2 3 4 5 6 7 8 9 --results docs/results.md \
-	    --datasets office corridors ring
+	    --datasets office corridors ring maze
 	for noise in 0.02 0.03; do $(BIN)/pf-slam bench worlds --data ../shared/data --out runs/bench --seeds 0 1 2 3 4 \
 	    --results docs/results.md --datasets office corridors ring --range-noise $$noise || exit 1; done
 	$(BIN)/pf-slam bench worlds --data ../shared/data --out runs/bench --seeds 0 1 2 3 4 --results docs/results.md \

@@ -56,6 +56,33 @@ def test_simulated_drives_close_their_loop_and_keep_off_the_walls():
         assert np.hypot(late[:, 0], late[:, 1]).min() < 1.0
 
 
+def test_maze_is_another_building_for_every_seed_and_its_drive_loops():
+    from pf_slam_tools.sim.maze import maze_layout
+
+    extents = set()
+    for seed in range(8):
+        world, truth = sim.WORLDS["maze"](np.random.default_rng(seed))
+        again, truth2 = sim.WORLDS["maze"](np.random.default_rng(seed))
+        assert np.array_equal(world.segments, again.segments) and np.array_equal(truth, truth2)  # seeded
+        extents.add(tuple(np.round(world.bounds[2:] - world.bounds[:2], 1)))
+        assert np.allclose(truth[0], 0.0)
+        assert distance_to_segments(truth[::20, :2], world.segments).min() > 0.25  # in the corridors
+        length = np.hypot(*np.diff(truth[:, :2], axis=0).T).sum()
+        assert 300 < length < 800
+        late = truth[len(truth) // 2 :, :2]
+        assert np.hypot(late[:, 0], late[:, 1]).min() < 1.0  # back at the start
+        # it passes some place twice far apart in time: loops inside the drive, not only at its end
+        step = max(1, len(truth) // 400)
+        t = truth[::step, :2]
+        gap = np.abs(np.arange(len(t))[:, None] - np.arange(len(t))[None]) * step
+        near = np.hypot(*(t[:, None] - t[None]).transpose(2, 0, 1)) < 1.0
+        first_half = np.arange(len(t))[:, None] < len(t) // 2
+        assert np.any(near & (gap > len(truth) // 5) & first_half)
+    assert len(extents) == 8  # eight different floor plans
+    world, xs, ys = maze_layout(np.random.default_rng(0))
+    assert 3 <= len(xs) <= 5 and 2 <= len(ys) <= 4
+
+
 def test_range_noise_changes_only_the_ranges_and_has_its_own_section():
     from pf_slam_tools.sim.indoor import ray_cast
 

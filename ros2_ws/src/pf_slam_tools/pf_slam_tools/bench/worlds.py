@@ -36,7 +36,7 @@ from pf_slam_nodes.runner.params import load_params, node_params
 
 #: the eight corrected-pose buildings (files in DATA/carmen_corrected)
 BUILDINGS = ("acapulco", "belgioioso", "edmonton", "fhw", "freiburg-101", "freiburg-campus", "orebro", "seattle")
-SIM_WORLDS = ("office", "corridors", "ring")
+SIM_WORLDS = ("office", "corridors", "ring", "maze")
 
 #: synthesised odometry (per run, from the odometry seed): a scale error, a heading bias, noise
 ODOM_SCALE = (0.01, 0.03)  # |scale error| drawn in this range, random sign

@@ -12,6 +12,9 @@ slip); the seed draws the drive's details, the odometry errors and the laser noi
   (~300 m at 1.5 m/s): aliasing along every corridor (doors every 4 m) and between corridors.
 * ``ring`` -- the 300 m x 150 m ring-corridor floor of :mod:`.floor` driven once around
   (~880 m at 3 m/s, 3 % past the start): a long loop.
+* ``maze`` -- a floor plan drawn from the seed (:mod:`.maze`: a lattice of corridors, blocks of
+  rooms, closed blocks, a pillared hall), 300-600 m through it with several loops: every seed is
+  another building, so nothing can be tuned to one.
 
 Everything is in the start frame (the robot's true start pose is the origin).
 """
@@ -176,8 +179,23 @@ def _ring(rng: np.random.Generator) -> tuple[IndoorWorld, np.ndarray]:
     return _shift(floor_world(L, W), -start[0], -start[1]), _drive(pieces, 3.0, 1.03, rng, 0.3)
 
 
+def _maze(rng: np.random.Generator) -> tuple[IndoorWorld, np.ndarray]:
+    from .maze import _DIRS, maze_layout, maze_route
+
+    world, xs, ys = maze_layout(rng)
+
+    def steps(i: int, j: int, d: int) -> float:
+        return abs(xs[i + _DIRS[d][0]] - xs[i]) + abs(ys[j + _DIRS[d][1]] - ys[j])
+
+    nodes = maze_route(len(xs), len(ys), steps, rng.uniform(300.0, 600.0), rng)
+    start = np.array([min(5.0, xs[1] / 3.0), 0.0])
+    corners = np.array([(xs[i], ys[j]) for i, j in nodes]) - start
+    pieces = _loop_primitives(corners, np.full(len(corners), 0.8), np.zeros(2))
+    return _shift(world, -start[0], -start[1]), _drive(pieces, rng.uniform(1.0, 2.0), 1.03, rng, 0.15)
+
+
 #: world name -> builder(rng) -> (world in the start frame, true poses at SIM_RATE_HZ)
-WORLDS = {"office": _office, "corridors": _corridors, "ring": _ring}
+WORLDS = {"office": _office, "corridors": _corridors, "ring": _ring, "maze": _maze}
 
 
 def laser_geometry(laser: tuple | None) -> tuple[np.ndarray, float]:
@@ -210,6 +228,7 @@ def simulate_world(
     if name not in WORLDS:
         raise ValueError(f"unknown simulated world {name!r}; known: {', '.join(WORLDS)}")
     drive_rng, odom_rng, laser_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(3))
+    # (maze: the drive's stream draws the floor plan too)
     world, truth = WORLDS[name](drive_rng)
     odom = simulate_odometry(truth, odom_rng)
     idx = np.arange(0, len(truth), SIM_RATE_HZ // SCAN_RATE_HZ)
