@@ -314,6 +314,16 @@ class CorrelationConfig(_ConfigBase):
         score's bilinear lookups. float32 is ~25 % faster; on the car's 0.2 m grid it is as
         accurate, on the indoor 0.05 m logs it is not (intel_910 segment test), so only
         ``kaist.yaml`` sets it.
+    degenerate_ratio : float
+        A match whose weak direction (in x, y) is constrained by less than this fraction of
+        its points -- the smaller eigenvalue of ``sum g g^T`` over the points' obstacle-distance
+        gradients ``g`` at the matched pose, divided by their number -- while its strong one
+        holds at least a quarter of them (``correlation.MATCHED_SHARE``) moves the particle only
+        along the strong direction: along a bare corridor the walls say
+        nothing about the position along it, and what little the scan seems to say (the end of
+        the wall mapped so far, which moves with the estimate) pulled the matches back until the
+        robot stood still in the map. 0 (default): off (docs/architecture.md, "A corridor that
+        says nothing along it").
     skip_unknown : bool
         Drop the scan points that fall on never-observed map cells (occupancy -1) at the
         highest-weighted predicted particle before matching. Such points carry no information,
@@ -421,9 +431,11 @@ class CorrelationConfig(_ConfigBase):
     recover_search_yaw_rad: float = 0.2
     recover_corrections: int = 3
     recover_min_gain: float = 15.0
+    degenerate_ratio: float = 0.0
 
     def __post_init__(self) -> None:
         _check_int("shadow_beams", self.shadow_beams, 1)
+        _check_unit("degenerate_ratio", self.degenerate_ratio)
         _check_int("recover_corrections", self.recover_corrections, 1)
         _check_pos("recover_min_gain", self.recover_min_gain)
         if not isinstance(self.odom_scale, bool):

@@ -393,6 +393,8 @@ def correlate(
     best, _ = window_search(poses, matched[:: cfg.beam_stride], field, cfg)
     it, res = cfg.refine_iterations, cfg.refine_residual
     best, _ = refine(best, matched[:: cfg.refine_beam_stride], field, it, res, cfg.precision)
+    if cfg.degenerate_ratio > 0:
+        best = _drop_degenerate(poses, best, matched[:: cfg.refine_beam_stride], field, cfg)
     refine_pts = pts[:: cfg.refine_beam_stride]
     score = _score(best, poses, refine_pts, field, cfg)
     if cfg.prior_sigma_xy_m > 0 or cfg.prior_sigma_yaw_rad > 0:
@@ -403,6 +405,42 @@ def correlate(
     if cfg.gain_xy < 1.0 or cfg.gain_yaw < 1.0:
         best, score = _blend(poses, best, refine_pts, field, cfg)
     return best, score
+
+
+#: ``correlation.degenerate_ratio``: a match counts as degenerate only where its strong direction
+#: holds at least this share of the points (gradient terms), i.e. the scan lies on the map there.
+#: Flagged corridor matches had 0.4-0.98; the sparse scans of the outdoor campus 0.01-0.1.
+MATCHED_SHARE = 0.25
+
+
+def _drop_degenerate(
+    predicted: np.ndarray, best: np.ndarray, pts: np.ndarray, field: LikelihoodField, cfg: CorrelationConfig
+) -> np.ndarray:
+    """``best`` with the shift from ``predicted`` along each match's weak direction removed
+    (``cfg.degenerate_ratio``): where the smaller eigenvalue of the points' ``sum g g^T``
+    (obstacle-distance gradients at the matched pose) is below ``degenerate_ratio`` times the
+    number of points while the larger one is at least :data:`MATCHED_SHARE` times it (the scan
+    lies on the map across the weak direction: a corridor), only the part of the shift along
+    the larger one's eigenvector is kept. A scan that matches nothing well (open space, a few
+    returns, a lost particle) is left as it is."""
+    if pts.shape[0] == 0:
+        return best
+    _, gx, gy, _, _ = _bilinear_at(best, pts, field, field._dist_flat, True, cfg.precision)
+    sxx, syy, sxy = _rowdot(gx, gx), _rowdot(gy, gy), _rowdot(gx, gy)
+    # closed-form eigenvalues of the (N, 2, 2) symmetric matrices
+    half_tr, det_part = 0.5 * (sxx + syy), np.hypot(0.5 * (sxx - syy), sxy)
+    m = pts.shape[0]
+    bad = ((half_tr - det_part) < cfg.degenerate_ratio * m) & ((half_tr + det_part) >= MATCHED_SHARE * m)
+    if not bad.any():
+        return best
+    strong_ang = 0.5 * np.arctan2(2.0 * sxy[bad], sxx[bad] - syy[bad])  # the larger eigenvalue's direction
+    vx, vy = np.cos(strong_ang), np.sin(strong_ang)
+    dx, dy = best[bad, 0] - predicted[bad, 0], best[bad, 1] - predicted[bad, 1]
+    along = dx * vx + dy * vy
+    out = best.copy()
+    out[bad, 0] = predicted[bad, 0] + along * vx
+    out[bad, 1] = predicted[bad, 1] + along * vy
+    return out
 
 
 def _blend(
