@@ -28,32 +28,17 @@ from collections import deque
 import numpy as np
 
 from .indoor import IndoorWorld
+from .worlds import _hwall, _segments_of_boxes
 
 __all__ = ["maze_layout", "maze_route"]
 
 _DIRS = ((1, 0), (0, 1), (-1, 0), (0, -1))  # east, north, west, south
 
 
-def _wall(a: tuple[float, float], b: tuple[float, float], gaps: list[tuple[float, float]]) -> list[tuple]:
-    """Segments of an axis-parallel wall from ``a`` to ``b`` with door ``gaps`` ``(centre, width)``
-    given as distances from ``a``."""
-    ax, ay = a
-    ux, uy = (b[0] - ax), (b[1] - ay)
-    n = math.hypot(ux, uy)
-    ux, uy = ux / n, uy / n
-    out, t = [], 0.0
-    for c, w in sorted(gaps):
-        t1 = c - 0.5 * w
-        if t1 > t:
-            out.append((ax + ux * t, ay + uy * t, ax + ux * t1, ay + uy * t1))
-        t = c + 0.5 * w
-    if t < n:
-        out.append((ax + ux * t, ay + uy * t, ax + ux * n, ay + uy * n))
-    return out
-
-
-def _rect(x0: float, y0: float, x1: float, y1: float) -> list[tuple]:
-    return [(x0, y0, x1, y0), (x1, y0, x1, y1), (x1, y1, x0, y1), (x0, y1, x0, y0)]
+def _box_outline(x0: float, y0: float, x1: float, y1: float) -> list[tuple]:
+    """The four walls of the rectangle ``[x0, x1] x [y0, y1]``."""
+    box = [(0.5 * (x0 + x1), 0.5 * (y0 + y1), x1 - x0, y1 - y0, 0.0)]
+    return [tuple(seg) for seg in _segments_of_boxes(np.array(box))]
 
 
 def _rooms(x0: float, y0: float, x1: float, y1: float, rng: np.random.Generator) -> tuple[list, list]:
@@ -70,14 +55,14 @@ def _rooms(x0: float, y0: float, x1: float, y1: float, rng: np.random.Generator)
         gaps = []
         for a, b in zip(edges[:-1], edges[1:]):
             dw = rng.uniform(0.9, 1.3)
-            gaps.append((rng.uniform(a + 0.3 + 0.5 * dw, b - 0.3 - 0.5 * dw) - x0, dw))
+            gaps.append((rng.uniform(a + 0.3 + 0.5 * dw, b - 0.3 - 0.5 * dw), dw))
             if rng.random() < 0.5:  # a desk somewhere in the room
                 lx, ly = rng.uniform(0.6, 1.6), rng.uniform(0.5, 0.8)
                 cx = rng.uniform(a + 0.4 + 0.5 * lx, max(b - 0.4 - 0.5 * lx, a + 0.4 + 0.5 * lx + 1e-6))
                 lo, hi = sorted((face, inner))
                 cy = rng.uniform(lo + 0.4 + 0.5 * ly, max(hi - 0.4 - 0.5 * ly, lo + 0.4 + 0.5 * ly + 1e-6))
                 boxes.append((cx, cy, lx, ly, 0.0))
-        segs += _wall((x0, face), (x1, face), gaps)
+        segs += _hwall(face, x0, x1, [c for c, _ in gaps], [w for _, w in gaps])
         segs += [(x, face, x, inner) for x in edges[1:-1]]
     return segs, boxes
 
@@ -124,7 +109,7 @@ def maze_layout(rng: np.random.Generator) -> tuple[IndoorWorld, np.ndarray, np.n
     wx, wy = rng.uniform(1.8, 3.5, nx), rng.uniform(1.8, 3.5, ny)
     bx0, bx1 = xs[0] - 0.5 * wx[0], xs[-1] + 0.5 * wx[-1]
     by0, by1 = ys[0] - 0.5 * wy[0], ys[-1] + 0.5 * wy[-1]
-    segs: list[tuple] = _rect(bx0, by0, bx1, by1)
+    segs: list[tuple] = _box_outline(bx0, by0, bx1, by1)
     boxes: list[tuple] = []
     halls = 0
     for i in range(nx - 1):
@@ -139,7 +124,7 @@ def maze_layout(rng: np.random.Generator) -> tuple[IndoorWorld, np.ndarray, np.n
                 segs += s
                 boxes += b
             elif kind == "solid":
-                segs += _rect(x0, y0, x1, y1)
+                segs += _box_outline(x0, y0, x1, y1)
             else:
                 halls += 1
                 boxes += _hall(x0, y0, x1, y1, rng)
@@ -152,17 +137,19 @@ def maze_layout(rng: np.random.Generator) -> tuple[IndoorWorld, np.ndarray, np.n
             if rng.random() < 0.3:
                 boxes += _corridor_pillars(np.array([xs[i], ys[j]]), np.array([xs[i + 1], ys[j]]), 0.5 * wy[j], rng)
     b = np.array(boxes, dtype=np.float64).reshape(-1, 5)
-    from .worlds import _segments_of_boxes
-
     segments = np.concatenate([np.array(segs, dtype=np.float64).reshape(-1, 4), _segments_of_boxes(b)])
     return IndoorWorld(segments=segments, boxes=b, bounds=np.array([bx0, by0, bx1, by1])), xs, ys
 
 
-def maze_route(nx: int, ny: int, steps: np.ndarray, target_m: float, rng: np.random.Generator) -> list[tuple[int, int]]:
-    """Lattice nodes where the route turns, from the start (on the south-west corridor, heading
-    east to node (1, 0)) back to node (0, 0), which it enters heading south. ``steps(i, j, d)``:
-    the length of the corridor from node (i, j) in direction ``d`` (an index into ``_DIRS``).
-    No U-turns; corridors not yet driven are 4x as likely."""
+def maze_route(xs: np.ndarray, ys: np.ndarray, target_m: float, rng: np.random.Generator) -> list[tuple[int, int]]:
+    """Lattice nodes (indices into the corridors' centre lines ``xs``, ``ys``) where the route
+    turns, from the start (on the south-west corridor, heading east to node (1, 0)) back to node
+    (0, 0), which it enters heading south. No U-turns; corridors not yet driven are 4x as likely;
+    it heads home once it has driven ``target_m``."""
+    nx, ny = len(xs), len(ys)
+
+    def steps(i: int, j: int, d: int) -> float:
+        return abs(xs[i + _DIRS[d][0]] - xs[i]) + abs(ys[j + _DIRS[d][1]] - ys[j])
 
     def nbr(node, d):
         i, j = node[0] + _DIRS[d][0], node[1] + _DIRS[d][1]

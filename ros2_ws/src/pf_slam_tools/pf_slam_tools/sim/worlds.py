@@ -56,12 +56,14 @@ def _segments_of_boxes(boxes: np.ndarray) -> np.ndarray:
     return np.concatenate([c, np.roll(c, -1, axis=1)], axis=-1).reshape(-1, 4)
 
 
-def _hwall(y: float, x0: float, x1: float, doors: list[float], door_w: float) -> list[tuple]:
-    """Segments along x at ``y`` from ``x0`` to ``x1`` with gaps of ``door_w`` at ``doors``."""
+def _hwall(y: float, x0: float, x1: float, doors: list[float], door_w) -> list[tuple]:
+    """Segments along x at ``y`` from ``x0`` to ``x1`` with gaps of ``door_w`` at ``doors``
+    (one width for all, or one per door)."""
+    widths = [door_w] * len(doors) if np.isscalar(door_w) else list(door_w)
     out, x = [], x0
-    for d in sorted(doors):
-        out.append((x, y, d - 0.5 * door_w, y))
-        x = d + 0.5 * door_w
+    for d, w in sorted(zip(doors, widths)):
+        out.append((x, y, d - 0.5 * w, y))
+        x = d + 0.5 * w
     out.append((x, y, x1, y))
     return out
 
@@ -180,14 +182,10 @@ def _ring(rng: np.random.Generator) -> tuple[IndoorWorld, np.ndarray]:
 
 
 def _maze(rng: np.random.Generator) -> tuple[IndoorWorld, np.ndarray]:
-    from .maze import _DIRS, maze_layout, maze_route
+    from .maze import maze_layout, maze_route
 
     world, xs, ys = maze_layout(rng)
-
-    def steps(i: int, j: int, d: int) -> float:
-        return abs(xs[i + _DIRS[d][0]] - xs[i]) + abs(ys[j + _DIRS[d][1]] - ys[j])
-
-    nodes = maze_route(len(xs), len(ys), steps, rng.uniform(300.0, 600.0), rng)
+    nodes = maze_route(xs, ys, rng.uniform(300.0, 600.0), rng)
     start = np.array([min(5.0, xs[1] / 3.0), 0.0])
     corners = np.array([(xs[i], ys[j]) for i, j in nodes]) - start
     pieces = _loop_primitives(corners, np.full(len(corners), 0.8), np.zeros(2))
