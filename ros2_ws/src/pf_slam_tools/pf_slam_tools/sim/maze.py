@@ -128,14 +128,12 @@ def maze_layout(rng: np.random.Generator) -> tuple[IndoorWorld, np.ndarray, np.n
             else:
                 halls += 1
                 boxes += _hall(x0, y0, x1, y1, rng)
-    for i in range(nx):  # pillars along some north-south corridors ...
-        for j in range(ny - 1):
-            if rng.random() < 0.3:
-                boxes += _corridor_pillars(np.array([xs[i], ys[j]]), np.array([xs[i], ys[j + 1]]), 0.5 * wx[i], rng)
-    for j in range(ny):  # ... and east-west ones
-        for i in range(nx - 1):
-            if rng.random() < 0.3:
-                boxes += _corridor_pillars(np.array([xs[i], ys[j]]), np.array([xs[i + 1], ys[j]]), 0.5 * wy[j], rng)
+    # pillars along some corridors: every north-south stretch between junctions, then every east-west one
+    stretches = [((xs[i], ys[j]), (xs[i], ys[j + 1]), wx[i]) for i in range(nx) for j in range(ny - 1)]
+    stretches += [((xs[i], ys[j]), (xs[i + 1], ys[j]), wy[j]) for j in range(ny) for i in range(nx - 1)]
+    for a, b, width in stretches:
+        if rng.random() < 0.3:
+            boxes += _corridor_pillars(np.array(a), np.array(b), 0.5 * width, rng)
     b = np.array(boxes, dtype=np.float64).reshape(-1, 5)
     segments = np.concatenate([np.array(segs, dtype=np.float64).reshape(-1, 4), _segments_of_boxes(b)])
     return IndoorWorld(segments=segments, boxes=b, bounds=np.array([bx0, by0, bx1, by1])), xs, ys
@@ -147,9 +145,6 @@ def maze_route(xs: np.ndarray, ys: np.ndarray, target_m: float, rng: np.random.G
     (0, 0), which it enters heading south. No U-turns; corridors not yet driven are 4x as likely;
     it heads home once it has driven ``target_m``."""
     nx, ny = len(xs), len(ys)
-
-    def steps(i: int, j: int, d: int) -> float:
-        return abs(xs[i + _DIRS[d][0]] - xs[i]) + abs(ys[j + _DIRS[d][1]] - ys[j])
 
     def nbr(node, d):
         i, j = node[0] + _DIRS[d][0], node[1] + _DIRS[d][1]
@@ -164,7 +159,7 @@ def maze_route(xs: np.ndarray, ys: np.ndarray, target_m: float, rng: np.random.G
         d = opts[int(rng.choice(len(opts), p=w / w.sum()))]
         nxt = nbr(node, d)
         driven.add(tuple(sorted((node, nxt))))
-        length += steps(node[0], node[1], d)
+        length += abs(xs[nxt[0]] - xs[node[0]]) + abs(ys[nxt[1]] - ys[node[1]])
         node, head = nxt, d
         path.append((node, head))
     # shortest way home without U-turns: enter (0, 0) heading south
