@@ -309,6 +309,14 @@ class CorrelationConfig(_ConfigBase):
     refine_residual : str
         ``'likelihood'``: residual ``1 - exp(-d^2 / (2 sigma^2))`` (smooth, default);
         ``'distance'``: residual ``d``.
+    refine_prior_xy_m, refine_prior_yaw_rad : float
+        Motion prior inside the refinement: its least-squares cost gains ``(dx^2 + dy^2) /
+        refine_prior_xy_m^2 + dyaw^2 / refine_prior_yaw_rad^2`` (the offset from the particle's
+        predicted pose), so each direction moves as far as the scan's own curvature along it
+        outweighs the prior: across a corridor the walls decide, along a bare one the odometry
+        does, and between the two the balance is smooth. Only the refined pose changes; the
+        particle's weight update is its scan score as without the prior. 0 disables that axis;
+        both 0 (default): off (docs/architecture.md, "A corridor that says nothing along it").
     precision : str
         ``'float64'`` (default) or ``'float32'``: the arithmetic of the refinement's and the
         score's bilinear lookups. float32 is ~25 % faster; on the car's 0.2 m grid it is as
@@ -412,6 +420,8 @@ class CorrelationConfig(_ConfigBase):
     temperature: float = 20.0
     refine_iterations: int = 30
     refine_residual: str = "likelihood"
+    refine_prior_xy_m: float = 0.0
+    refine_prior_yaw_rad: float = 0.0
     precision: str = "float64"
     skip_unknown: bool = False
     prior_sigma_xy_m: float = 0.0
@@ -436,6 +446,8 @@ class CorrelationConfig(_ConfigBase):
     def __post_init__(self) -> None:
         _check_int("shadow_beams", self.shadow_beams, 1)
         _check_unit("degenerate_ratio", self.degenerate_ratio)
+        _check_nonneg("refine_prior_xy_m", self.refine_prior_xy_m)
+        _check_nonneg("refine_prior_yaw_rad", self.refine_prior_yaw_rad)
         _check_int("recover_corrections", self.recover_corrections, 1)
         _check_pos("recover_min_gain", self.recover_min_gain)
         if not isinstance(self.odom_scale, bool):

@@ -286,8 +286,10 @@ def refine(
     iterations: int,
     residual: str = "likelihood",
     precision: str = "float64",
+    prior: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Damped Gauss-Newton refinement of ``sum r(p_i)^2`` for every pose (vectorised).
+    """Damped Gauss-Newton refinement of ``sum r(p_i)^2`` for every pose (vectorised), plus a
+    motion prior if given.
 
     ``residual='likelihood'``: ``r = 1 - exp(-d^2 / (2 sigma^2))`` (smooth, Hector-style);
     ``residual='distance'``: ``r = d`` (clamped obstacle distance).
@@ -304,18 +306,23 @@ def refine(
     iterations : int
     residual : str
         ``'likelihood'`` or ``'distance'``.
+    prior : tuple of numpy.ndarray, optional
+        ``(predicted (N, 3), weights (3,))``: the cost gains ``sum_k w_k e_k^2``, ``e`` the pose's
+        offset from its predicted pose (x, y, yaw): a least-squares prior that holds the pose
+        where the scan's own curvature is weak (along a bare corridor) and yields where it is
+        strong (``correlation.refine_prior_xy_m``).
 
     Returns
     -------
     poses : numpy.ndarray
         ``(N, 3)`` refined poses.
     cost : numpy.ndarray
-        ``(N,)`` ``sum r^2`` at the refined poses.
+        ``(N,)`` ``sum r^2`` (and the prior's term) at the refined poses.
     """
     x = np.array(poses, dtype=np.float64).reshape(-1, 3)
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     d, gx, gy, rx, ry = _cost(x, pts, field, residual, precision)
-    cost = _rowdot(d, d)
+    cost = _rowdot(d, d) + _prior_term(x, prior, None)
     max_t = 2.0 * field.resolution
     max_r = 0.05
     active = np.arange(x.shape[0])  # poses still moving
@@ -330,6 +337,10 @@ def refine(
         h[:, 0, 2] = h[:, 2, 0] = _rowdot(gx, j3)
         h[:, 1, 2] = h[:, 2, 1] = _rowdot(gy, j3)
         b = np.stack([_rowdot(gx, d), _rowdot(gy, d), _rowdot(j3, d)], axis=1)
+        if prior is not None:
+            e = _offset(x[active], prior[0][active])
+            h[:, diag, diag] += prior[1]
+            b += prior[1] * e
         h[:, diag, diag] = h[:, diag, diag] * (1.0 + 1e-3) + 1e-9  # Levenberg damping
         step = -np.linalg.solve(h, b[:, :, None])[..., 0]
         t = np.hypot(step[:, 0], step[:, 1])
@@ -337,7 +348,7 @@ def refine(
         np.clip(step[:, 2], -max_r, max_r, out=step[:, 2])
         xn = x[active] + step
         dn, gxn, gyn, rxn, ryn = _cost(xn, pts, field, residual, precision)
-        cn = _rowdot(dn, dn)
+        cn = _rowdot(dn, dn) + _prior_term(xn, prior, active)
         better = cn < cost[active]
         acc = active[better]
         x[acc] = xn[better]
@@ -350,6 +361,22 @@ def refine(
             d, gx, gy, rx, ry = dn[moving], gxn[moving], gyn[moving], rxn[moving], ryn[moving]
     x[:, 2] = wrap_angle(x[:, 2])
     return x, cost
+
+
+def _offset(poses: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+    """``(N, 3)`` ``poses - predicted``, the yaw wrapped."""
+    e = poses - predicted
+    e[:, 2] = wrap_angle(e[:, 2])
+    return e
+
+
+def _prior_term(poses: np.ndarray, prior: tuple[np.ndarray, np.ndarray] | None, rows: np.ndarray | None):
+    """``(N,)`` the refinement prior's cost ``sum_k w_k e_k^2`` of ``poses`` (the prior's rows
+    ``rows``; None: all), or 0 without a prior."""
+    if prior is None:
+        return 0.0
+    e = _offset(poses, prior[0] if rows is None else prior[0][rows])
+    return (e * e) @ prior[1]
 
 
 def _distances(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField, precision: str) -> np.ndarray:
@@ -392,7 +419,11 @@ def correlate(
         return poses.copy(), np.zeros(poses.shape[0])
     best, _ = window_search(poses, matched[:: cfg.beam_stride], field, cfg)
     it, res = cfg.refine_iterations, cfg.refine_residual
-    best, _ = refine(best, matched[:: cfg.refine_beam_stride], field, it, res, cfg.precision)
+    prior = None
+    if cfg.refine_prior_xy_m > 0 or cfg.refine_prior_yaw_rad > 0:
+        w = [_inv_sq(cfg.refine_prior_xy_m)] * 2 + [_inv_sq(cfg.refine_prior_yaw_rad)]
+        prior = (poses, np.array(w))
+    best, _ = refine(best, matched[:: cfg.refine_beam_stride], field, it, res, cfg.precision, prior)
     if cfg.degenerate_ratio > 0:
         best = _drop_degenerate(poses, best, matched[:: cfg.refine_beam_stride], field, cfg)
     refine_pts = pts[:: cfg.refine_beam_stride]
@@ -441,6 +472,11 @@ def _drop_degenerate(
     out[bad, 0] = predicted[bad, 0] + along * vx
     out[bad, 1] = predicted[bad, 1] + along * vy
     return out
+
+
+def _inv_sq(sigma: float) -> float:
+    """``sigma^-2``, 0 for ``sigma`` 0 (no prior on that axis)."""
+    return sigma**-2 if sigma > 0 else 0.0
 
 
 def _blend(
