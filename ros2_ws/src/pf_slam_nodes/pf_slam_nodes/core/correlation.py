@@ -201,16 +201,23 @@ def _prior_penalty(dx: np.ndarray, dy: np.ndarray, dyaw: np.ndarray, cfg: Correl
     return r[:, None] + t.reshape(1, -1)
 
 
+def _offset(poses: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+    """``(N, 3)`` ``poses - predicted``, the yaw wrapped."""
+    e = poses - predicted
+    e[:, 2] = wrap_angle(e[:, 2])
+    return e
+
+
 def _prior_cost(poses: np.ndarray, predicted: np.ndarray, cfg: CorrelationConfig) -> np.ndarray:
     """``(N,)`` motion-prior cost of ``poses`` relative to ``predicted`` (0 without a prior)."""
     c = np.zeros(poses.shape[0])
+    if cfg.prior_sigma_xy_m <= 0 and cfg.prior_sigma_yaw_rad <= 0:
+        return c
+    e = _offset(poses, predicted)
     if cfg.prior_sigma_xy_m > 0:
-        c += ((poses[:, 0] - predicted[:, 0]) ** 2 + (poses[:, 1] - predicted[:, 1]) ** 2) * (
-            0.5 / cfg.prior_sigma_xy_m**2
-        )
+        c += (e[:, 0] ** 2 + e[:, 1] ** 2) * (0.5 / cfg.prior_sigma_xy_m**2)
     if cfg.prior_sigma_yaw_rad > 0:
-        dth = wrap_angle(poses[:, 2] - predicted[:, 2])
-        c += dth**2 * (0.5 / cfg.prior_sigma_yaw_rad**2)
+        c += e[:, 2] ** 2 * (0.5 / cfg.prior_sigma_yaw_rad**2)
     return c
 
 
@@ -361,13 +368,6 @@ def refine(
             d, gx, gy, rx, ry = dn[moving], gxn[moving], gyn[moving], rxn[moving], ryn[moving]
     x[:, 2] = wrap_angle(x[:, 2])
     return x, cost
-
-
-def _offset(poses: np.ndarray, predicted: np.ndarray) -> np.ndarray:
-    """``(N, 3)`` ``poses - predicted``, the yaw wrapped."""
-    e = poses - predicted
-    e[:, 2] = wrap_angle(e[:, 2])
-    return e
 
 
 def _prior_term(poses: np.ndarray, prior: tuple[np.ndarray, np.ndarray] | None, rows: np.ndarray | None):
