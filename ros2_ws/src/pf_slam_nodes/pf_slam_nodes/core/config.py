@@ -317,6 +317,15 @@ class CorrelationConfig(_ConfigBase):
         does, and between the two the balance is smooth. Only the refined pose changes; the
         particle's weight update is its scan score as without the prior. 0 disables that axis;
         both 0 (default): off (docs/architecture.md, "A corridor that says nothing along it").
+    refine_prior_shape : str
+        ``'isotropic'`` (default): the x, y prior above holds every direction alike. ``'weak'``:
+        it holds only the direction the match's points do not constrain, as much as they do not
+        -- per particle, from ``S = sum a g g^T`` over its points' obstacle-distance gradients
+        ``g`` at the window's best pose (``a = exp(-d^2 / 2 sigma^2)``: points on the map count),
+        the prior's weight along ``S``'s weak eigenvector is ``(1 - weak / strong)`` times
+        ``min(1, strong / (MATCHED_SHARE * points))`` and 0 along the strong one. Along a bare
+        corridor that is nearly the full prior; in a room, or in open space where the scan lies on
+        little of the map, nearly none, so the scan corrects the pose as without a prior.
     precision : str
         ``'float64'`` (default) or ``'float32'``: the arithmetic of the refinement's and the
         score's bilinear lookups. float32 is ~25 % faster; on the car's 0.2 m grid it is as
@@ -422,6 +431,7 @@ class CorrelationConfig(_ConfigBase):
     refine_residual: str = "likelihood"
     refine_prior_xy_m: float = 0.0
     refine_prior_yaw_rad: float = 0.0
+    refine_prior_shape: str = "isotropic"
     precision: str = "float64"
     skip_unknown: bool = False
     prior_sigma_xy_m: float = 0.0
@@ -485,6 +495,8 @@ class CorrelationConfig(_ConfigBase):
             raise ValueError(f"occupied_threshold must be <= 100, got {self.occupied_threshold!r}")
         _check_pos("temperature", self.temperature)
         _check_int("refine_iterations", self.refine_iterations, 0)
+        if self.refine_prior_shape not in ("isotropic", "weak"):
+            raise ValueError(f"refine_prior_shape must be 'isotropic' or 'weak', got {self.refine_prior_shape!r}")
         if self.refine_residual not in ("likelihood", "distance"):
             raise ValueError(f"refine_residual must be 'likelihood' or 'distance', got {self.refine_residual!r}")
         if self.precision not in ("float64", "float32"):

@@ -346,8 +346,12 @@ def refine(
         b = np.stack([_rowdot(gx, d), _rowdot(gy, d), _rowdot(j3, d)], axis=1)
         if prior is not None:
             e = _offset(x[active], prior[0][active])
-            h[:, diag, diag] += prior[1]
-            b += prior[1] * e
+            if prior[1].ndim == 1:
+                h[:, diag, diag] += prior[1]
+                b += prior[1] * e
+            else:
+                h += prior[1][active]
+                b += np.einsum("nij,nj->ni", prior[1][active], e)
         h[:, diag, diag] = h[:, diag, diag] * (1.0 + 1e-3) + 1e-9  # Levenberg damping
         step = -np.linalg.solve(h, b[:, :, None])[..., 0]
         t = np.hypot(step[:, 0], step[:, 1])
@@ -376,7 +380,10 @@ def _prior_term(poses: np.ndarray, prior: tuple[np.ndarray, np.ndarray] | None, 
     if prior is None:
         return 0.0
     e = _offset(poses, prior[0] if rows is None else prior[0][rows])
-    return (e * e) @ prior[1]
+    if prior[1].ndim == 1:
+        return (e * e) @ prior[1]
+    w = prior[1] if rows is None else prior[1][rows]
+    return np.einsum("ni,nij,nj->n", e, w, e)
 
 
 def _distances(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField, precision: str) -> np.ndarray:
@@ -422,7 +429,10 @@ def correlate(
     prior = None
     if cfg.refine_prior_xy_m > 0 or cfg.refine_prior_yaw_rad > 0:
         w = [_inv_sq(cfg.refine_prior_xy_m)] * 2 + [_inv_sq(cfg.refine_prior_yaw_rad)]
-        prior = (poses, np.array(w))
+        w = np.array(w)
+        if cfg.refine_prior_shape == "weak" and w[0] > 0:
+            w = _weak_prior(best, matched[:: cfg.refine_beam_stride], field, cfg, w)
+        prior = (poses, w)
     best, _ = refine(best, matched[:: cfg.refine_beam_stride], field, it, res, cfg.precision, prior)
     if cfg.degenerate_ratio > 0:
         best = _drop_degenerate(poses, best, matched[:: cfg.refine_beam_stride], field, cfg)
@@ -456,15 +466,12 @@ def _drop_degenerate(
     returns, a lost particle) is left as it is."""
     if pts.shape[0] == 0:
         return best
-    _, gx, gy, _, _ = _bilinear_at(best, pts, field, field._dist_flat, True, cfg.precision)
-    sxx, syy, sxy = _rowdot(gx, gx), _rowdot(gy, gy), _rowdot(gx, gy)
-    # closed-form eigenvalues of the (N, 2, 2) symmetric matrices
-    half_tr, det_part = 0.5 * (sxx + syy), np.hypot(0.5 * (sxx - syy), sxy)
+    strong, weak, ang = _gradient_eigen(best, pts, field, cfg.precision)
     m = pts.shape[0]
-    bad = ((half_tr - det_part) < cfg.degenerate_ratio * m) & ((half_tr + det_part) >= MATCHED_SHARE * m)
+    bad = (weak < cfg.degenerate_ratio * m) & (strong >= MATCHED_SHARE * m)
     if not bad.any():
         return best
-    strong_ang = 0.5 * np.arctan2(2.0 * sxy[bad], sxx[bad] - syy[bad])  # the larger eigenvalue's direction
+    strong_ang = ang[bad]  # the larger eigenvalue's direction
     vx, vy = np.cos(strong_ang), np.sin(strong_ang)
     dx, dy = best[bad, 0] - predicted[bad, 0], best[bad, 1] - predicted[bad, 1]
     along = dx * vx + dy * vy
@@ -472,6 +479,37 @@ def _drop_degenerate(
     out[bad, 0] = predicted[bad, 0] + along * vx
     out[bad, 1] = predicted[bad, 1] + along * vy
     return out
+
+
+def _weak_prior(best: np.ndarray, pts: np.ndarray, field: LikelihoodField, cfg: CorrelationConfig, w: np.ndarray):
+    """``(N, 3, 3)`` refinement-prior weights (``w``: the isotropic ones, ``(3,)``) that hold each
+    match only along its weak direction (``correlation.refine_prior_shape = 'weak'``): the x, y
+    weight along the weak eigenvector of the points' ``sum a g g^T`` at ``best`` (``g`` the
+    obstacle-distance gradient, ``a = exp(-d^2 / 2 sigma^2)``) is ``w * (1 - weak / strong) *
+    min(1, strong / (MATCHED_SHARE * points))``, along the strong one 0; the yaw weight is kept."""
+    strong, weak, ang = _gradient_eigen(best, pts, field, cfg.precision, cfg.sigma_m)
+    f = (1.0 - weak / np.maximum(strong, 1e-12)) * np.minimum(1.0, strong / (MATCHED_SHARE * pts.shape[0]))
+    ux, uy = -np.sin(ang), np.cos(ang)  # the weak eigenvector
+    out = np.zeros((best.shape[0], 3, 3))
+    out[:, 0, 0] = w[0] * f * ux * ux
+    out[:, 1, 1] = w[0] * f * uy * uy
+    out[:, 0, 1] = out[:, 1, 0] = w[0] * f * ux * uy
+    out[:, 2, 2] = w[2]
+    return out
+
+
+def _gradient_eigen(poses: np.ndarray, pts: np.ndarray, field: LikelihoodField, precision: str, sigma: float = 0.0):
+    """``(strong, weak, angle)``, each ``(N,)``: the eigenvalues of the points' ``sum a g g^T``
+    (``g`` the obstacle-distance gradient at each pose; ``a = exp(-d^2 / 2 sigma^2)``, or 1 for
+    ``sigma`` 0) and the strong eigenvector's direction (rad)."""
+    d, gx, gy, _, _ = _bilinear_at(poses, pts, field, field._dist_flat, True, precision)
+    agx, agy = gx, gy
+    if sigma > 0:
+        a = np.exp(-0.5 * (d / sigma) ** 2)
+        agx, agy = a * gx, a * gy
+    sxx, syy, sxy = _rowdot(agx, gx), _rowdot(agy, gy), _rowdot(agx, gy)
+    half_tr, det_part = 0.5 * (sxx + syy), np.hypot(0.5 * (sxx - syy), sxy)
+    return half_tr + det_part, half_tr - det_part, 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
 
 
 def _inv_sq(sigma: float) -> float:
