@@ -350,11 +350,14 @@ def test_a_bare_corridor_moves_no_match_along_it_with_degenerate_ratio():
     assert np.array_equal(a, b)
 
 
-def test_a_refinement_prior_holds_a_bare_corridor_match_along_it_and_not_across():
+@pytest.mark.parametrize("shape", ["isotropic", "weak"])
+def test_a_refinement_prior_holds_a_bare_corridor_match_along_it_and_not_across(shape):
     """The corridor above, its map ending 6 m ahead: with ``refine_prior_xy_m`` the refined pose
     stays near the prediction along the corridor (where the scan's curvature is weak and the end
     of the mapped wall pulls it back) and is still corrected across it; in a room, where every
-    direction is constrained, the prior moves the match by about a centimetre at most."""
+    direction is constrained, the prior moves the match by about a centimetre at most. The same
+    with ``refine_prior_shape='weak'``, which holds only the direction the points do not
+    constrain."""
     occ_true = np.zeros((120, 800), dtype=np.int8)
     occ_true[36, :] = occ_true[84, :] = 100
     occ_map = occ_true.copy()
@@ -364,8 +367,9 @@ def test_a_refinement_prior_holds_a_bare_corridor_match_along_it_and_not_across(
     pts = scan_to_points(raycast(occ_true, pose, ang), ang, 0.1, 19.0)
     field = build_likelihood_field(occ_map, RES, 0.05, 65, (0.0, 0.0), 0.3)
     start = (pose + np.array([0.0, 0.07, 0.0]))[None]
+    cfg = CorrelationConfig(refine_prior_xy_m=0.1, refine_prior_shape=shape)
     plain, s_plain = correlate(start, pts, field, CorrelationConfig())
-    held, s_held = correlate(start, pts, field, CorrelationConfig(refine_prior_xy_m=0.1))
+    held, s_held = correlate(start, pts, field, cfg)
     assert plain[0, 0] < pose[0] - 0.05
     assert abs(held[0, 0] - pose[0]) < 0.02  # along: the prediction
     assert abs(held[0, 1] - pose[1]) < 0.02  # across: corrected
@@ -376,37 +380,9 @@ def test_a_refinement_prior_holds_a_bare_corridor_match_along_it_and_not_across(
     room = build_likelihood_field(occ, RES, 0.05, 65, (0.0, 0.0), 0.3)
     s = compose(p, np.array([0.08, -0.06, 0.03]))[None]
     a, _ = correlate(s, room_pts, room, CorrelationConfig())
-    b, _ = correlate(s, room_pts, room, CorrelationConfig(refine_prior_xy_m=0.1))
+    b, _ = correlate(s, room_pts, room, cfg)
     assert np.hypot(*(a[0, :2] - b[0, :2])) < 0.015 and abs(a[0, 2] - b[0, 2]) < 0.003
     with pytest.raises(ValueError, match="refine_prior_xy_m"):
         CorrelationConfig(refine_prior_xy_m=-0.1)
-
-
-def test_a_weak_shaped_refinement_prior_holds_only_the_weak_direction():
-    """``refine_prior_shape='weak'``: the prior acts only along the direction the match's points
-    do not constrain. Along the corridor above it holds the prediction as the isotropic prior
-    does, and across it the walls correct the pose; in a room, constrained every way, the match
-    stays within a centimetre of the plain one."""
-    occ_true = np.zeros((120, 800), dtype=np.int8)
-    occ_true[36, :] = occ_true[84, :] = 100
-    occ_map = occ_true.copy()
-    occ_map[:, 320:] = -1
-    pose = np.array([10.0, 3.0, 0.0])
-    ang = beam_angles(-math.pi / 2, math.pi / 180, 181)
-    pts = scan_to_points(raycast(occ_true, pose, ang), ang, 0.1, 19.0)
-    field = build_likelihood_field(occ_map, RES, 0.05, 65, (0.0, 0.0), 0.3)
-    start = (pose + np.array([0.0, 0.07, 0.0]))[None]
-    weak = CorrelationConfig(refine_prior_xy_m=0.1, refine_prior_shape="weak")
-    held, _ = correlate(start, pts, field, weak)
-    assert abs(held[0, 0] - pose[0]) < 0.02  # along: the prediction
-    assert abs(held[0, 1] - pose[1]) < 0.02  # across: corrected
-    occ = world()
-    p = np.array([6.1, 5.2, 0.4])
-    room_pts = scan_to_points(raycast(occ, p, ang), ang, 0.1, 19.0)
-    room = build_likelihood_field(occ, RES, 0.05, 65, (0.0, 0.0), 0.3)
-    s = compose(p, np.array([0.08, -0.06, 0.03]))[None]
-    a, _ = correlate(s, room_pts, room, CorrelationConfig())
-    b, _ = correlate(s, room_pts, room, weak)
-    assert np.hypot(*(a[0, :2] - b[0, :2])) < 0.015 and abs(a[0, 2] - b[0, 2]) < 0.003
     with pytest.raises(ValueError, match="refine_prior_shape"):
         CorrelationConfig(refine_prior_shape="round")
