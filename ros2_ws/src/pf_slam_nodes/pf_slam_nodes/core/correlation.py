@@ -428,8 +428,7 @@ def correlate(
     it, res = cfg.refine_iterations, cfg.refine_residual
     prior = None
     if cfg.refine_prior_xy_m > 0 or cfg.refine_prior_yaw_rad > 0:
-        w = [_inv_sq(cfg.refine_prior_xy_m)] * 2 + [_inv_sq(cfg.refine_prior_yaw_rad)]
-        w = np.array(w)
+        w = np.array([_inv_sq(cfg.refine_prior_xy_m)] * 2 + [_inv_sq(cfg.refine_prior_yaw_rad)])
         if cfg.refine_prior_shape == "weak" and w[0] > 0:
             w = _weak_prior(best, matched[:: cfg.refine_beam_stride], field, cfg, w)
         prior = (poses, w)
