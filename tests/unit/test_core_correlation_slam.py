@@ -1,5 +1,6 @@
 """Likelihood field, scan-to-map correlation and the reference SLAM loop (synthetic worlds)."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -386,3 +387,28 @@ def test_a_refinement_prior_holds_a_bare_corridor_match_along_it_and_not_across(
         CorrelationConfig(refine_prior_xy_m=-0.1)
     with pytest.raises(ValueError, match="refine_prior_shape"):
         CorrelationConfig(refine_prior_shape="round")
+
+
+def test_weak_score_weighs_a_set_spread_along_a_bare_corridor_alike():
+    """The corridor whose map ends 6 m ahead, a set spread 0.3 m along it: the plain weights
+    favour the particles furthest back (their points beyond the end of the mapped wall land on
+    it), by far more than the softmax's temperature. With ``weak_score`` the particles are
+    weighed at the set's mean along the corridor and score within a fraction of that; the
+    refined poses are the same either way."""
+    occ_true = np.zeros((120, 800), dtype=np.int8)
+    occ_true[36, :] = occ_true[84, :] = 100
+    occ_map = occ_true.copy()
+    occ_map[:, 320:] = -1
+    pose = np.array([10.0, 3.0, 0.0])
+    ang = beam_angles(-math.pi / 2, math.pi / 180, 181)
+    pts = scan_to_points(raycast(occ_true, pose, ang), ang, 0.1, 19.0)
+    field = build_likelihood_field(occ_map, RES, 0.05, 65, (0.0, 0.0), 0.3)
+    spread = pose + np.array([[dx, 0.03 * (-1) ** i, 0.0] for i, dx in enumerate(np.linspace(-0.15, 0.15, 7))])
+    cfg = CorrelationConfig(refine_prior_xy_m=0.15, refine_prior_shape="weak")
+    plain, s_plain = correlate(spread, pts, field, cfg)
+    held, s_held = correlate(spread, pts, field, dataclasses.replace(cfg, weak_score=True))
+    np.testing.assert_array_equal(plain, held)
+    assert np.all(np.diff(s_plain) < 0) and s_plain[0] - s_plain[-1] > 5.0  # behind scores better
+    assert np.ptp(s_held) < 0.1 * np.ptp(s_plain)
+    with pytest.raises(ValueError, match="weak_score"):
+        CorrelationConfig(refine_prior_xy_m=0.15, weak_score=True)  # the isotropic shape

@@ -326,6 +326,14 @@ class CorrelationConfig(_ConfigBase):
         ``min(1, strong / (MATCHED_SHARE * points))`` and 0 along the strong one. Along a bare
         corridor that is nearly the full prior; in a room, or in open space where the scan lies on
         little of the map, nearly none, so the scan corrects the pose as without a prior.
+    weak_score : bool
+        With ``refine_prior_shape='weak'``: each particle's weight update is its scan score at its
+        refined pose moved along its weak direction, by the prior's fraction ``(1 - weak /
+        strong) * min(1, strong / (MATCHED_SHARE * points))`` of the way, to the set's mean
+        there. Along a bare corridor the particles then weigh the same whatever their offset
+        along it, so the weights cannot favour the particles the end of the mapped wall pulls
+        back. Default False: measured, not the profile's (docs/architecture.md, "A corridor that
+        says nothing along it").
     precision : str
         ``'float64'`` (default) or ``'float32'``: the arithmetic of the refinement's and the
         score's bilinear lookups. float32 is ~25 % faster; on the car's 0.2 m grid it is as
@@ -432,6 +440,7 @@ class CorrelationConfig(_ConfigBase):
     refine_prior_xy_m: float = 0.0
     refine_prior_yaw_rad: float = 0.0
     refine_prior_shape: str = "isotropic"
+    weak_score: bool = False
     precision: str = "float64"
     skip_unknown: bool = False
     prior_sigma_xy_m: float = 0.0
@@ -497,6 +506,10 @@ class CorrelationConfig(_ConfigBase):
         _check_int("refine_iterations", self.refine_iterations, 0)
         if self.refine_prior_shape not in ("isotropic", "weak"):
             raise ValueError(f"refine_prior_shape must be 'isotropic' or 'weak', got {self.refine_prior_shape!r}")
+        if not isinstance(self.weak_score, bool):
+            raise ValueError(f"weak_score must be a bool, got {self.weak_score!r}")
+        if self.weak_score and (self.refine_prior_shape != "weak" or self.refine_prior_xy_m <= 0):
+            raise ValueError("weak_score needs refine_prior_shape 'weak' and a refine_prior_xy_m above 0")
         if self.refine_residual not in ("likelihood", "distance"):
             raise ValueError(f"refine_residual must be 'likelihood' or 'distance', got {self.refine_residual!r}")
         if self.precision not in ("float64", "float32"):

@@ -426,17 +426,18 @@ def correlate(
         return poses.copy(), np.zeros(poses.shape[0])
     best, _ = window_search(poses, matched[:: cfg.beam_stride], field, cfg)
     it, res = cfg.refine_iterations, cfg.refine_residual
-    prior = None
+    prior = weak = None
     if cfg.refine_prior_xy_m > 0 or cfg.refine_prior_yaw_rad > 0:
         w = np.array([_inv_sq(cfg.refine_prior_xy_m)] * 2 + [_inv_sq(cfg.refine_prior_yaw_rad)])
         if cfg.refine_prior_shape == "weak" and w[0] > 0:
-            w = _weak_prior(best, matched[:: cfg.refine_beam_stride], field, cfg, w)
+            w, weak = _weak_prior(best, matched[:: cfg.refine_beam_stride], field, cfg, w)
         prior = (poses, w)
     best, _ = refine(best, matched[:: cfg.refine_beam_stride], field, it, res, cfg.precision, prior)
     if cfg.degenerate_ratio > 0:
         best = _drop_degenerate(poses, best, matched[:: cfg.refine_beam_stride], field, cfg)
     refine_pts = pts[:: cfg.refine_beam_stride]
-    score = _score(best, poses, refine_pts, field, cfg)
+    scored = _along_weak_to_mean(best, *weak) if weak is not None and cfg.weak_score else best
+    score = _score(scored, poses, refine_pts, field, cfg)
     if cfg.prior_sigma_xy_m > 0 or cfg.prior_sigma_yaw_rad > 0:
         score0 = _score(poses, poses, refine_pts, field, cfg)
         stay = score0 >= score
@@ -485,7 +486,8 @@ def _weak_prior(best: np.ndarray, pts: np.ndarray, field: LikelihoodField, cfg: 
     match only along its weak direction (``correlation.refine_prior_shape = 'weak'``): the x, y
     weight along the weak eigenvector of the points' ``sum a g g^T`` at ``best`` (``g`` the
     obstacle-distance gradient, ``a = exp(-d^2 / 2 sigma^2)``) is ``w * (1 - weak / strong) *
-    min(1, strong / (MATCHED_SHARE * points))``, along the strong one 0; the yaw weight is kept."""
+    min(1, strong / (MATCHED_SHARE * points))``, along the strong one 0; the yaw weight is kept.
+    Also returns ``(f, ux, uy)``: that fraction and the weak eigenvector, each ``(N,)``."""
     strong, weak, ang = _gradient_eigen(best, pts, field, cfg.precision, cfg.sigma_m)
     f = (1.0 - weak / np.maximum(strong, 1e-12)) * np.minimum(1.0, strong / (MATCHED_SHARE * pts.shape[0]))
     ux, uy = -np.sin(ang), np.cos(ang)  # the weak eigenvector
@@ -494,6 +496,17 @@ def _weak_prior(best: np.ndarray, pts: np.ndarray, field: LikelihoodField, cfg: 
     out[:, 1, 1] = w[0] * f * uy * uy
     out[:, 0, 1] = out[:, 1, 0] = w[0] * f * ux * uy
     out[:, 2, 2] = w[2]
+    return out, (f, ux, uy)
+
+
+def _along_weak_to_mean(best: np.ndarray, f: np.ndarray, ux: np.ndarray, uy: np.ndarray) -> np.ndarray:
+    """``best`` with each pose moved along its weak direction ``(ux, uy)``, by ``f`` of the way, to
+    the set's mean there: the poses the weights are computed at."""
+    mean = best[:, :2].mean(axis=0)
+    along = (best[:, 0] - mean[0]) * ux + (best[:, 1] - mean[1]) * uy
+    out = best.copy()
+    out[:, 0] -= f * along * ux
+    out[:, 1] -= f * along * uy
     return out
 
 
