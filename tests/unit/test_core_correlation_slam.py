@@ -351,14 +351,9 @@ def test_a_bare_corridor_moves_no_match_along_it_with_degenerate_ratio():
     assert np.array_equal(a, b)
 
 
-@pytest.mark.parametrize("shape", ["isotropic", "weak"])
-def test_a_refinement_prior_holds_a_bare_corridor_match_along_it_and_not_across(shape):
-    """The corridor above, its map ending 6 m ahead: with ``refine_prior_xy_m`` the refined pose
-    stays near the prediction along the corridor (where the scan's curvature is weak and the end
-    of the mapped wall pulls it back) and is still corrected across it; in a room, where every
-    direction is constrained, the prior moves the match by about a centimetre at most. The same
-    with ``refine_prior_shape='weak'``, which holds only the direction the points do not
-    constrain."""
+def corridor_ending_ahead():
+    """A 2.4 m wide corridor, the robot at (10, 3) heading along it, its map ending 6 m ahead:
+    ``(pose, scan points, field, beam angles)``."""
     occ_true = np.zeros((120, 800), dtype=np.int8)
     occ_true[36, :] = occ_true[84, :] = 100
     occ_map = occ_true.copy()
@@ -367,6 +362,18 @@ def test_a_refinement_prior_holds_a_bare_corridor_match_along_it_and_not_across(
     ang = beam_angles(-math.pi / 2, math.pi / 180, 181)
     pts = scan_to_points(raycast(occ_true, pose, ang), ang, 0.1, 19.0)
     field = build_likelihood_field(occ_map, RES, 0.05, 65, (0.0, 0.0), 0.3)
+    return pose, pts, field, ang
+
+
+@pytest.mark.parametrize("shape", ["isotropic", "weak"])
+def test_a_refinement_prior_holds_a_bare_corridor_match_along_it_and_not_across(shape):
+    """The corridor above, its map ending 6 m ahead: with ``refine_prior_xy_m`` the refined pose
+    stays near the prediction along the corridor (where the scan's curvature is weak and the end
+    of the mapped wall pulls it back) and is still corrected across it; in a room, where every
+    direction is constrained, the prior moves the match by about a centimetre at most. The same
+    with ``refine_prior_shape='weak'``, which holds only the direction the points do not
+    constrain."""
+    pose, pts, field, ang = corridor_ending_ahead()
     start = (pose + np.array([0.0, 0.07, 0.0]))[None]
     cfg = CorrelationConfig(refine_prior_xy_m=0.1, refine_prior_shape=shape)
     plain, s_plain = correlate(start, pts, field, CorrelationConfig())
@@ -395,14 +402,7 @@ def test_weak_score_weighs_a_set_spread_along_a_bare_corridor_alike():
     it): their scores fall by about 17 over the 0.3 m. With ``weak_score`` the particles are
     weighed at the set's mean along the corridor and score within a fraction of that; the
     refined poses are the same either way."""
-    occ_true = np.zeros((120, 800), dtype=np.int8)
-    occ_true[36, :] = occ_true[84, :] = 100
-    occ_map = occ_true.copy()
-    occ_map[:, 320:] = -1
-    pose = np.array([10.0, 3.0, 0.0])
-    ang = beam_angles(-math.pi / 2, math.pi / 180, 181)
-    pts = scan_to_points(raycast(occ_true, pose, ang), ang, 0.1, 19.0)
-    field = build_likelihood_field(occ_map, RES, 0.05, 65, (0.0, 0.0), 0.3)
+    pose, pts, field, _ = corridor_ending_ahead()
     spread = pose + np.array([[dx, 0.03 * (-1) ** i, 0.0] for i, dx in enumerate(np.linspace(-0.15, 0.15, 7))])
     cfg = CorrelationConfig(refine_prior_xy_m=0.15, refine_prior_shape="weak")
     plain, s_plain = correlate(spread, pts, field, cfg)
