@@ -322,19 +322,25 @@ def test_float32_precision_matches_float64_and_is_checked():
         CorrelationConfig(precision="float16")
 
 
-def test_a_bare_corridor_moves_no_match_along_it_with_degenerate_ratio():
-    """A corridor whose mapped walls end 6 m ahead (where the robot's map stops): the points
-    beyond pull the match back along it. With ``degenerate_ratio`` the match keeps the predicted
-    position along the corridor and still corrects across it; in a room nothing changes."""
+def corridor_ending_ahead():
+    """A 2.4 m wide corridor, the robot at (10, 3) heading along it, its map ending 6 m ahead:
+    ``(pose, scan points, field, beam angles)``."""
     occ_true = np.zeros((120, 800), dtype=np.int8)  # 40 m x 6 m, walls at y = 1.8 and 4.2 m
     occ_true[36, :] = occ_true[84, :] = 100
     occ_map = occ_true.copy()
     occ_map[:, 320:] = -1  # mapped up to x = 16 m
     pose = np.array([10.0, 3.0, 0.0])
     ang = beam_angles(-math.pi / 2, math.pi / 180, 181)
-    ranges = raycast(occ_true, pose, ang)
-    pts = scan_to_points(ranges, ang, 0.1, 19.0)
+    pts = scan_to_points(raycast(occ_true, pose, ang), ang, 0.1, 19.0)
     field = build_likelihood_field(occ_map, RES, 0.05, 65, (0.0, 0.0), 0.3)
+    return pose, pts, field, ang
+
+
+def test_a_bare_corridor_moves_no_match_along_it_with_degenerate_ratio():
+    """A corridor whose mapped walls end 6 m ahead (where the robot's map stops): the points
+    beyond pull the match back along it. With ``degenerate_ratio`` the match keeps the predicted
+    position along the corridor and still corrects across it; in a room nothing changes."""
+    pose, pts, field, ang = corridor_ending_ahead()
     start = (pose + np.array([0.0, 0.07, 0.0]))[None]  # 7 cm off across the corridor
     plain, _ = correlate(start, pts, field, CorrelationConfig())
     kept, _ = correlate(start, pts, field, CorrelationConfig(degenerate_ratio=0.02))
@@ -349,20 +355,6 @@ def test_a_bare_corridor_moves_no_match_along_it_with_degenerate_ratio():
     a, _ = correlate(s, scan_to_points(r, ang, 0.1, 19.0), room, CorrelationConfig())
     b, _ = correlate(s, scan_to_points(r, ang, 0.1, 19.0), room, CorrelationConfig(degenerate_ratio=0.02))
     assert np.array_equal(a, b)
-
-
-def corridor_ending_ahead():
-    """A 2.4 m wide corridor, the robot at (10, 3) heading along it, its map ending 6 m ahead:
-    ``(pose, scan points, field, beam angles)``."""
-    occ_true = np.zeros((120, 800), dtype=np.int8)
-    occ_true[36, :] = occ_true[84, :] = 100
-    occ_map = occ_true.copy()
-    occ_map[:, 320:] = -1
-    pose = np.array([10.0, 3.0, 0.0])
-    ang = beam_angles(-math.pi / 2, math.pi / 180, 181)
-    pts = scan_to_points(raycast(occ_true, pose, ang), ang, 0.1, 19.0)
-    field = build_likelihood_field(occ_map, RES, 0.05, 65, (0.0, 0.0), 0.3)
-    return pose, pts, field, ang
 
 
 @pytest.mark.parametrize("shape", ["isotropic", "weak"])
