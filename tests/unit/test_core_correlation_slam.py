@@ -12,6 +12,7 @@ from pf_slam_nodes.core.correlation import (
     build_likelihood_field,
     build_likelihood_field_from_map,
     correlate,
+    weighing_points,
 )
 from pf_slam_nodes.core.grid import LogOddsGrid, from_occupancy
 from pf_slam_nodes.core.motion import compose, relative_pose
@@ -404,3 +405,24 @@ def test_weak_score_weighs_a_set_spread_along_a_bare_corridor_alike():
     assert np.ptp(s_held) < 0.1 * np.ptp(s_plain)
     with pytest.raises(ValueError, match="weak_score"):
         CorrelationConfig(refine_prior_xy_m=0.15, weak_score=True)  # the isotropic shape
+
+
+def test_the_sparse_grazing_returns_weigh_no_particle_along_a_bare_corridor():
+    """The corridor whose map ends 6 m ahead, the set spread 0.3 m along it: the far returns
+    from the side walls (more than 1 m apart, at grazing angles) are what weighs the particles
+    furthest back up; with ``weigh_graze_span_m`` they weigh no particle, the scores lie within
+    a fraction of a unit and the refined poses are the same. ``weigh_range_margin_m`` leaves out
+    the returns near the end of the correlation range."""
+    pose, pts, field, _ = corridor_ending_ahead()
+    spread = pose + np.array([[dx, 0.03 * (-1) ** i, 0.0] for i, dx in enumerate(np.linspace(-0.15, 0.15, 7))])
+    cfg = CorrelationConfig(refine_prior_xy_m=0.15, refine_prior_shape="weak")
+    plain, s_plain = correlate(spread, pts, field, cfg)
+    kept, s_kept = correlate(spread, pts, field, dataclasses.replace(cfg, weigh_graze_span_m=1.0))
+    np.testing.assert_array_equal(plain, kept)
+    assert s_plain[0] - s_plain[-1] > 5.0  # behind scores better
+    assert np.ptp(s_kept) < 0.01 * np.ptp(s_plain)
+    near = weighing_points(pts, CorrelationConfig(range_max_m=8.0, weigh_range_margin_m=2.0))
+    r = np.hypot(pts[:, 0], pts[:, 1])
+    np.testing.assert_array_equal(near, pts[r <= 6.0])
+    with pytest.raises(ValueError, match="weigh_range_margin_m"):
+        CorrelationConfig(weigh_range_margin_m=-1.0)

@@ -6,7 +6,13 @@ import numpy as np
 
 from pf_slam_nodes.core.config import GridConfig
 from pf_slam_nodes.core.grid import LogOddsGrid, from_occupancy
-from pf_slam_nodes.core.scan import beam_angles, scan_to_points, transform_points, transform_points_batch
+from pf_slam_nodes.core.scan import (
+    beam_angles,
+    grazing_samples,
+    scan_to_points,
+    transform_points,
+    transform_points_batch,
+)
 
 L4 = math.log(4.0)
 
@@ -170,3 +176,20 @@ def test_mapping_stage_maps_the_far_returns_of_a_sparse_scan():
         m.integrate(np.zeros(3), ranges, angles, 0.1, 30.0)
         hits[frac] = int(np.count_nonzero(m.grid.log_odds > 0))
     assert hits[0.0] == 0 and hits[0.25] == 2
+
+
+def test_grazing_samples_are_the_sparse_far_returns_of_a_wall_seen_along_it():
+    """A wall 1.2 m to the left, beams every degree: the returns more than 1 m apart where the
+    beams meet it more than 70 deg from its normal (far along it) are grazing samples; the near
+    ones (dense, head-on) are not, nor is a return whose neighbours lie on two surfaces."""
+    a = beam_angles(math.radians(5.0), math.radians(1.0), 80)  # 5 .. 84 deg
+    pts = np.stack([1.2 / np.tan(a), np.full(a.size, 1.2)], axis=1)
+    g = grazing_samples(pts, 1.0)
+    span = np.zeros(a.size)
+    span[1:-1] = np.hypot(*(pts[2:] - pts[:-2]).T)
+    incidence = np.degrees(math.pi / 2 - a)  # from the wall's normal
+    np.testing.assert_array_equal(g[1:-1], ((span > 1.0) & (incidence > 70.0))[1:-1])
+    assert g[1:-1].any() and not g[-20:].any() and not g[0] and not g[-1]
+    bent = pts.copy()
+    bent[11:, 1] += 3.0  # from beam 11 on, another surface 3 m further out
+    assert not grazing_samples(bent, 1.0)[10:12].any()

@@ -349,6 +349,18 @@ class CorrelationConfig(_ConfigBase):
         the wall mapped so far, which moves with the estimate) pulled the matches back until the
         robot stood still in the map. 0 (default): off (docs/architecture.md, "A corridor that
         says nothing along it").
+    weigh_graze_span_m : float
+        The returns that sample a straight surface more than this far apart at a grazing angle
+        (> 70 deg from its normal; :func:`~.scan.grazing_samples`) weigh no particle; they
+        still move the poses. Along a bare corridor these are the far returns from the side
+        walls: the map keeps them only as dots that later rays graze away, so where its walls end
+        moves with the estimate, and the particles behind the estimate put those returns on the
+        walls and were weighed up, scan after scan. 0 (default): off.
+    weigh_range_margin_m : float
+        The returns within this distance of the correlation range's end (``range_max_m``, or a
+        sparse scan's own cut) weigh no particle; they still move the poses. They land beyond
+        where the earlier scans, which reached as far from a little way back, mapped the walls.
+        0 (default): off.
     skip_unknown : bool
         Drop the scan points that fall on never-observed map cells (occupancy -1) at the
         highest-weighted predicted particle before matching. Such points carry no information,
@@ -461,12 +473,16 @@ class CorrelationConfig(_ConfigBase):
     recover_corrections: int = 3
     recover_min_gain: float = 15.0
     degenerate_ratio: float = 0.0
+    weigh_graze_span_m: float = 0.0
+    weigh_range_margin_m: float = 0.0
 
     def __post_init__(self) -> None:
         _check_int("shadow_beams", self.shadow_beams, 1)
         _check_unit("degenerate_ratio", self.degenerate_ratio)
         _check_nonneg("refine_prior_xy_m", self.refine_prior_xy_m)
         _check_nonneg("refine_prior_yaw_rad", self.refine_prior_yaw_rad)
+        _check_nonneg("weigh_graze_span_m", self.weigh_graze_span_m)
+        _check_nonneg("weigh_range_margin_m", self.weigh_range_margin_m)
         _check_int("recover_corrections", self.recover_corrections, 1)
         _check_pos("recover_min_gain", self.recover_min_gain)
         if not isinstance(self.odom_scale, bool):

@@ -18,6 +18,7 @@ from .likelihood import (
     build_likelihood_field_from_map,
     build_likelihood_field_from_mask,
 )
+from .scan import grazing_samples
 
 __all__ = [
     "DEFAULT_PAD_CELLS",
@@ -402,6 +403,18 @@ def usable_points(
     return pts[near], matched
 
 
+def weighing_points(pts: np.ndarray, cfg: CorrelationConfig) -> np.ndarray:
+    """The usable points (``(M, 2)``, scan order) that weigh the particles: all of them, less the
+    sparse grazing samples (``cfg.weigh_graze_span_m``) and those within
+    ``cfg.weigh_range_margin_m`` of ``cfg.range_max_m``."""
+    keep = np.ones(pts.shape[0], dtype=bool)
+    if cfg.weigh_graze_span_m > 0:
+        keep &= ~grazing_samples(pts, cfg.weigh_graze_span_m)
+    if cfg.weigh_range_margin_m > 0:
+        keep &= np.hypot(pts[:, 0], pts[:, 1]) <= cfg.range_max_m - cfg.weigh_range_margin_m
+    return pts if keep.all() else pts[keep]
+
+
 def correlate(
     poses: np.ndarray,
     points_sensor: np.ndarray,
@@ -417,8 +430,8 @@ def correlate(
     (:func:`refine`, beams ``::refine_beam_stride``); beams longer than ``cfg.range_max_m`` are
     ignored. ``match`` ``(M,)`` bool: the points these two use (default all; the points behind an
     occluding edge, ``correlation.shadow_jump_m``, move no pose). The score, ``-sum d^2 / (2
-    sigma^2)`` over every point at the refinement's stride (0 when no beam is usable), weighs the
-    particles.
+    sigma^2)`` over the points :func:`weighing_points` keeps at the refinement's stride (0 when no
+    beam is usable), weighs the particles.
     """
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
     pts, matched = usable_points(points_sensor, cfg, match)
@@ -435,7 +448,7 @@ def correlate(
     best, _ = refine(best, matched[:: cfg.refine_beam_stride], field, it, res, cfg.precision, prior)
     if cfg.degenerate_ratio > 0:
         best = _drop_degenerate(poses, best, matched[:: cfg.refine_beam_stride], field, cfg)
-    refine_pts = pts[:: cfg.refine_beam_stride]
+    refine_pts = weighing_points(pts, cfg)[:: cfg.refine_beam_stride]
     scored = _along_weak_to_mean(best, *weak) if weak is not None and cfg.weak_score else best
     score = _score(scored, poses, refine_pts, field, cfg)
     if cfg.prior_sigma_xy_m > 0 or cfg.prior_sigma_yaw_rad > 0:

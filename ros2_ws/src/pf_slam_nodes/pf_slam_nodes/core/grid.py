@@ -17,6 +17,7 @@ import numpy as np
 
 from .config import GridConfig
 from .geometry import compose
+from .scan import on_line
 
 #: ``(row_min, row_max, col_min, col_max)``, half-open ``[min, max)``.
 Bounds = tuple[int, int, int, int]
@@ -368,11 +369,11 @@ class LogOddsGrid:
         """Cells ``[col, row]`` on the segments between neighbouring beams' ends that lie on one
         smooth surface (``grid.surface_fill_m``): both beams hit, they are neighbours in the scan,
         the segment is at most ``surface_fill_m`` long and each end is collinear with its other
-        neighbour (:func:`_on_line`), so an edge's range jump or clutter is never bridged. The
+        neighbour (:func:`~.scan.on_line`), so an edge's range jump or clutter is never bridged. The
         segment is sampled every half cell; its end cells are the beams' own hit cells."""
         h = np.flatnonzero(is_hit)
         px, py = ex[h], ey[h]
-        line = _on_line(px, py)[0]
+        line = on_line(px, py)[0]
         tx, ty = np.diff(px), np.diff(py)
         length = np.hypot(tx, ty)
         seg = np.flatnonzero(
@@ -412,7 +413,7 @@ class LogOddsGrid:
             with np.errstate(invalid="ignore", divide="ignore"):
                 return np.where(norm > 0, norm / np.maximum(cross, 1e-12), 1.0)
 
-        line, tpx, tpy, tnx, tny = _on_line(px, py)
+        line, tpx, tpy, tnx, tny = on_line(px, py)
         inv_sin = np.where(line, inv_sin(tpx + tnx, tpy + tny), 1.0)
         cells = np.floor(np.minimum(inv_sin, self.cfg.graze_margin_m / self.resolution + 1.0)).astype(np.int64) - 1
         out = np.zeros(is_hit.size, dtype=np.int64)
@@ -564,21 +565,6 @@ class LogOddsGrid:
     def to_occupancy_map(self, bounds: Bounds | None = None) -> OccupancyMap:
         """The (cropped) grid as an :class:`OccupancyMap` (what a ROS subscriber would get)."""
         return OccupancyMap(self.occupancy(bounds), self.resolution, self.bounds_origin(bounds))
-
-
-def _on_line(px: np.ndarray, py: np.ndarray, max_deg: float = 5.0):
-    """Which beam ends (in scan order) lie on one line with their previous and next ends (within
-    ``max_deg``): a smooth surface, not a range jump at an edge or clutter. Returns ``(K,)`` bool
-    (the first and last ends: False) and the tangents to the previous and to the next end
-    ``tpx, tpy, tnx, tny`` (``(K,)``, zero at the first and last)."""
-    tpx, tpy = np.zeros(px.size), np.zeros(px.size)
-    tnx, tny = np.zeros(px.size), np.zeros(px.size)
-    tpx[1:-1], tpy[1:-1] = px[1:-1] - px[:-2], py[1:-1] - py[:-2]
-    tnx[1:-1], tny[1:-1] = px[2:] - px[1:-1], py[2:] - py[1:-1]
-    dot = tpx * tnx + tpy * tny
-    crs = np.abs(tpx * tny - tpy * tnx)
-    line = (dot > 0) & (crs <= math.sin(math.radians(max_deg)) * np.hypot(tpx, tpy) * np.hypot(tnx, tny))
-    return line, tpx, tpy, tnx, tny
 
 
 def _scan_arrays(pose, ranges, angles, sensor_offset) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

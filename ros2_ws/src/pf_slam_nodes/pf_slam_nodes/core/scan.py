@@ -134,6 +134,40 @@ def scan_to_points(
     return np.stack([r * np.cos(a), r * np.sin(a)], axis=-1)
 
 
+def on_line(px: np.ndarray, py: np.ndarray, max_deg: float = 5.0):
+    """Which beam ends (in scan order) lie on one line with their previous and next ends (within
+    ``max_deg``): a smooth surface, not a range jump at an edge or clutter. Returns ``(K,)`` bool
+    (the first and last ends: False) and the tangents to the previous and to the next end
+    ``tpx, tpy, tnx, tny`` (``(K,)``, zero at the first and last)."""
+    tpx, tpy = np.zeros(px.size), np.zeros(px.size)
+    tnx, tny = np.zeros(px.size), np.zeros(px.size)
+    tpx[1:-1], tpy[1:-1] = px[1:-1] - px[:-2], py[1:-1] - py[:-2]
+    tnx[1:-1], tny[1:-1] = px[2:] - px[1:-1], py[2:] - py[1:-1]
+    dot = tpx * tnx + tpy * tny
+    crs = np.abs(tpx * tny - tpy * tnx)
+    line = (dot > 0) & (crs <= math.sin(math.radians(max_deg)) * np.hypot(tpx, tpy) * np.hypot(tnx, tny))
+    return line, tpx, tpy, tnx, tny
+
+
+def grazing_samples(points: np.ndarray, min_span_m: float, min_incidence_deg: float = 70.0) -> np.ndarray:
+    """``(M,)`` bool: the returns (``points`` ``(M, 2)`` in scan order, sensor frame) that sample a
+    straight surface sparsely at a grazing angle: the return lies on one line with its previous
+    and next ones (:func:`on_line`), those two are more than ``min_span_m`` apart, and the line
+    meets the beam more than ``min_incidence_deg`` from the surface normal. Along a corridor these
+    are the far returns from its side walls; a map keeps them only as dots that later rays graze
+    away, so where its walls end moves with the estimate."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    out = np.zeros(pts.shape[0], dtype=bool)
+    if pts.shape[0] < 3:
+        return out
+    line, tpx, tpy, tnx, tny = on_line(pts[:, 0], pts[:, 1])
+    tx, ty = tpx + tnx, tpy + tny  # previous to next return
+    span = np.hypot(tx, ty)
+    r = np.hypot(pts[:, 0], pts[:, 1])
+    cos_inc = np.abs(tx * pts[:, 1] - ty * pts[:, 0]) / np.maximum(span * r, 1e-12)
+    return line & (span > min_span_m) & (cos_inc < math.cos(math.radians(min_incidence_deg)))
+
+
 def transform_points(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
     """Map points from the frame of ``pose`` into the parent frame.
 
