@@ -17,7 +17,7 @@ import numpy as np
 
 from .config import GridConfig
 from .geometry import compose
-from .scan import on_line
+from .scan import line_incidence, on_line
 
 #: ``(row_min, row_max, col_min, col_max)``, half-open ``[min, max)``.
 Bounds = tuple[int, int, int, int]
@@ -403,18 +403,7 @@ class LogOddsGrid:
         edge, or clutter, is no surface); ``floor(1 / sin(a)) - 1`` cells are skipped (0 up to 30 degrees from the
         normal), at most ``graze_margin_m``."""
         h = np.flatnonzero(is_hit)
-        px, py = ex[h], ey[h]
-        ux, uy = px - sx, py - sy
-        un = np.hypot(ux, uy)
-
-        def inv_sin(tx, ty):
-            cross = np.abs(ux * ty - uy * tx)
-            norm = un * np.hypot(tx, ty)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                return np.where(norm > 0, norm / np.maximum(cross, 1e-12), 1.0)
-
-        line, tpx, tpy, tnx, tny = on_line(px, py)
-        inv_sin = np.where(line, inv_sin(tpx + tnx, tpy + tny), 1.0)
+        _, inv_sin, _ = line_incidence(ex[h], ey[h], sx, sy)
         cells = np.floor(np.minimum(inv_sin, self.cfg.graze_margin_m / self.resolution + 1.0)).astype(np.int64) - 1
         out = np.zeros(is_hit.size, dtype=np.int64)
         out[h] = np.maximum(cells, 0)

@@ -149,23 +149,31 @@ def on_line(px: np.ndarray, py: np.ndarray, max_deg: float = 5.0):
     return line, tpx, tpy, tnx, tny
 
 
+def line_incidence(px: np.ndarray, py: np.ndarray, sx: float = 0.0, sy: float = 0.0):
+    """For beam ends ``px, py`` (``(K,)``, scan order) seen from a sensor at ``(sx, sy)``: which
+    lie on one line with their neighbours (:func:`on_line`), ``1 / sin`` of the angle between the
+    beam and that line (the previous to the next end; 1 head-on, large when grazing; 1 where the
+    end is on no line) and the distance from the previous to the next end, each ``(K,)``."""
+    line, tpx, tpy, tnx, tny = on_line(px, py)
+    tx, ty = tpx + tnx, tpy + tny
+    ux, uy = px - sx, py - sy
+    cross = np.abs(ux * ty - uy * tx)
+    norm = np.hypot(ux, uy) * np.hypot(tx, ty)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        inv_sin = np.where(norm > 0, norm / np.maximum(cross, 1e-12), 1.0)
+    return line, np.where(line, inv_sin, 1.0), np.hypot(tx, ty)
+
+
 def grazing_samples(points: np.ndarray, min_span_m: float, min_incidence_deg: float = 70.0) -> np.ndarray:
     """``(M,)`` bool: the returns (``points`` ``(M, 2)`` in scan order, sensor frame) that sample a
     straight surface sparsely at a grazing angle: the return lies on one line with its previous
-    and next ones (:func:`on_line`), those two are more than ``min_span_m`` apart, and the line
-    meets the beam more than ``min_incidence_deg`` from the surface normal. Along a corridor these
-    are the far returns from its side walls; a map keeps them only as dots that later rays graze
-    away, so where its walls end moves with the estimate."""
+    and next ones (:func:`line_incidence`), those two are more than ``min_span_m`` apart, and the
+    line meets the beam more than ``min_incidence_deg`` from the surface normal. Along a corridor
+    these are the far returns from its side walls; a map keeps them only as dots that later rays
+    graze away, so where its walls end moves with the estimate."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-    out = np.zeros(pts.shape[0], dtype=bool)
-    if pts.shape[0] < 3:
-        return out
-    line, tpx, tpy, tnx, tny = on_line(pts[:, 0], pts[:, 1])
-    tx, ty = tpx + tnx, tpy + tny  # previous to next return
-    span = np.hypot(tx, ty)
-    r = np.hypot(pts[:, 0], pts[:, 1])
-    cos_inc = np.abs(tx * pts[:, 1] - ty * pts[:, 0]) / np.maximum(span * r, 1e-12)
-    return line & (span > min_span_m) & (cos_inc < math.cos(math.radians(min_incidence_deg)))
+    line, inv_sin, span = line_incidence(pts[:, 0], pts[:, 1])
+    return line & (span > min_span_m) & (inv_sin > 1.0 / math.cos(math.radians(min_incidence_deg)))
 
 
 def transform_points(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
