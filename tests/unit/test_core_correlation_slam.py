@@ -389,16 +389,23 @@ def test_a_refinement_prior_holds_a_bare_corridor_match_along_it_and_not_across(
         CorrelationConfig(refine_prior_shape="round")
 
 
+def set_spread_along_corridor():
+    """Seven particles spread 0.3 m along :func:`corridor_ending_ahead` (and 3 cm across, by
+    turns), the weak-shaped refinement prior, and their plain correlation: ``(set, scan points,
+    field, config, refined poses, scores)``."""
+    pose, pts, field, _ = corridor_ending_ahead()
+    spread = pose + np.array([[dx, 0.03 * (-1) ** i, 0.0] for i, dx in enumerate(np.linspace(-0.15, 0.15, 7))])
+    cfg = CorrelationConfig(refine_prior_xy_m=0.15, refine_prior_shape="weak")
+    return (spread, pts, field, cfg, *correlate(spread, pts, field, cfg))
+
+
 def test_weak_score_weighs_a_set_spread_along_a_bare_corridor_alike():
     """The corridor whose map ends 6 m ahead, a set spread 0.3 m along it: the plain weights
     favour the particles furthest back (their points beyond the end of the mapped wall land on
     it): their scores fall by about 17 over the 0.3 m. With ``weak_score`` the particles are
     weighed at the set's mean along the corridor and score within a fraction of that; the
     refined poses are the same either way."""
-    pose, pts, field, _ = corridor_ending_ahead()
-    spread = pose + np.array([[dx, 0.03 * (-1) ** i, 0.0] for i, dx in enumerate(np.linspace(-0.15, 0.15, 7))])
-    cfg = CorrelationConfig(refine_prior_xy_m=0.15, refine_prior_shape="weak")
-    plain, s_plain = correlate(spread, pts, field, cfg)
+    spread, pts, field, cfg, plain, s_plain = set_spread_along_corridor()
     held, s_held = correlate(spread, pts, field, dataclasses.replace(cfg, weak_score=True))
     np.testing.assert_array_equal(plain, held)
     assert np.all(np.diff(s_plain) < 0) and s_plain[0] - s_plain[-1] > 5.0  # behind scores better
@@ -413,10 +420,7 @@ def test_the_sparse_grazing_returns_weigh_no_particle_along_a_bare_corridor():
     furthest back up; with ``weigh_graze_span_m`` they weigh no particle, the scores lie within
     a fraction of a unit and the refined poses are the same. ``weigh_range_margin_m`` leaves out
     the returns near the end of the correlation range."""
-    pose, pts, field, _ = corridor_ending_ahead()
-    spread = pose + np.array([[dx, 0.03 * (-1) ** i, 0.0] for i, dx in enumerate(np.linspace(-0.15, 0.15, 7))])
-    cfg = CorrelationConfig(refine_prior_xy_m=0.15, refine_prior_shape="weak")
-    plain, s_plain = correlate(spread, pts, field, cfg)
+    spread, pts, field, cfg, plain, s_plain = set_spread_along_corridor()
     kept, s_kept = correlate(spread, pts, field, dataclasses.replace(cfg, weigh_graze_span_m=1.0))
     np.testing.assert_array_equal(plain, kept)
     assert s_plain[0] - s_plain[-1] > 5.0  # behind scores better
