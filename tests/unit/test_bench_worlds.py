@@ -134,3 +134,29 @@ def test_another_laser_is_simulated_and_has_its_own_section():
     for bad in ("1081,270", "many,270,30", "1,270,30", "1081,400,30"):
         with pytest.raises(ValueError, match="laser"):
             worlds.parse_laser(bad)
+
+
+def test_the_tables_show_the_poses_as_published_beside_the_final_solve():
+    """A short stretch of the office through the ROS-free loop: the row carries the ATE of the
+    poses as returned scan by scan and of the final frame, and both tables print them."""
+    d = worlds.sim_drive("office", 0)
+    k = 150
+    short = worlds.Drive("office", d.truth[:k], d.odom[:k], d.ranges[:k], d.angles[:k], d.range_max)
+    est, info = worlds.run_drive(short, 0)
+    assert est.shape == (k, 3) and info["scans"] == k
+    assert 0.0 <= info["ate_published_rmse"] < 0.1  # the office's first metres: well inside the target
+    row = {
+        "world": "office",
+        "seed": 0,
+        **info,
+        **worlds.score(est, short.truth),
+        "odom_ate_rmse": 0.5,
+        "length_m": 9.0,
+    }
+    other = {**row, "seed": 1, "ate_published_rmse": 0.25}
+    per_run = worlds.format_table([row, other])
+    assert "ATE as published (m)" in per_run.splitlines()[0]
+    assert f"| {info['ate_published_rmse']:.3f} |" in per_run.splitlines()[2] and "| 0.250 |" in per_run.splitlines()[3]
+    summary = worlds.summary_table([row, other])
+    median = np.median([info["ate_published_rmse"], 0.25])
+    assert f"| {median:.3f} / 0.250 |" in summary.splitlines()[2]
