@@ -156,12 +156,13 @@ def line_incidence(px: np.ndarray, py: np.ndarray, sx: float = 0.0, sy: float = 
     end is on no line) and the distance from the previous to the next end, each ``(K,)``."""
     line, tpx, tpy, tnx, tny = on_line(px, py)
     tx, ty = tpx + tnx, tpy + tny
+    span = np.hypot(tx, ty)
     ux, uy = px - sx, py - sy
     cross = np.abs(ux * ty - uy * tx)
-    norm = np.hypot(ux, uy) * np.hypot(tx, ty)
+    norm = np.hypot(ux, uy) * span
     with np.errstate(invalid="ignore", divide="ignore"):
         inv_sin = np.where(norm > 0, norm / np.maximum(cross, 1e-12), 1.0)
-    return line, np.where(line, inv_sin, 1.0), np.hypot(tx, ty)
+    return line, np.where(line, inv_sin, 1.0), span
 
 
 def grazing_samples(points: np.ndarray, min_span_m: float, min_incidence_deg: float = 70.0) -> np.ndarray:
