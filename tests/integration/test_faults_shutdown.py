@@ -403,11 +403,15 @@ def test_killed_node_is_named_outputs_kept_no_orphans(tmp_path, ros_domain):
 # ------------------------------------------------------------------ lossy replay is never silent
 def test_replay_faster_than_the_graph_counts_and_prints_drops(tmp_path, ros_domain):
     """The car bag (2000 scans in 20 s) replayed as fast as the replay can publish (100000x:
-    it never waits) into one process per node: the predictor takes more time per message than
-    the replay, so its queues overflow on any machine; every scan published and not processed
-    is reported as dropped, and the scans that did arrive still give the right trajectory.
-    (At 1000x a machine fast enough to replay at 1000x can also keep up, and nothing drops.)"""
+    it never waits) into one process per node, the predictor's scan queue 20 deep: the predictor
+    takes more time per message than the replay, so its queue overflows on any machine and under
+    any load (with the default 1000 it had to fall 1000 scans behind); every scan published and
+    not processed is reported as dropped, and the scans that did arrive still give the right
+    trajectory. (At 1000x a machine fast enough to replay at 1000x can also keep up, and nothing
+    drops.)"""
     out = tmp_path / "out"
+    shallow = tmp_path / "shallow.yaml"
+    shallow.write_text("predictor:\n  ros__parameters:\n    scan_queue_depth: 20\n")
     r = subprocess.run(
         [
             sys.executable,
@@ -417,8 +421,10 @@ def test_replay_faster_than_the_graph_counts_and_prints_drops(tmp_path, ros_doma
             str(CAR),
             "--out",
             str(out),
+            "--profile",
+            "kaist",
             "--params",
-            str(KAIST),
+            str(shallow),
             "--rate",
             "100000",
             "--processes",

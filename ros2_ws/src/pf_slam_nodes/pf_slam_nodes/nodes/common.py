@@ -44,6 +44,9 @@ PARAM_DOCS: dict[str, str] = {
     "clock_period_s": "/clock goes out at least this often in bag time, and with every scan (s)",
     "sensor_qos": "QoS reliability of the sensor subscriptions (scan, odometry, encoders, gyro): 'reliable' "
     "(lossless replay) or 'best_effort' (drivers that publish with the sensor-data QoS)",
+    "scan_queue_depth": "scans the predictor's scan subscription holds while it is busy; when the filter falls "
+    "further behind the oldest is dropped (counted in the summary). Deep for a lossless replay; a live robot that "
+    "wants only recent scans may set it low",
     "start_delay_s": "wait this long after the graph is ready before the first message (s; like ros2 bag "
     "play --delay: time for a viewer on an open --domain to discover the run)",
     "wait_for": "nodes whose pf_slam/ready announcement the replay waits for before it starts",

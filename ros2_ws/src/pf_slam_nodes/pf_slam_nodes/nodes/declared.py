@@ -70,6 +70,7 @@ NODE_PLAIN: dict[str, dict[str, Any]] = {
         "mount_from_tf": False,
         "mount_wait_s": 5.0,
         "sensor_qos": "reliable",
+        "scan_queue_depth": 1000,
     },
     "correlator": {
         "map_frame": "map",
