@@ -51,3 +51,22 @@ def test_bad_sensor_qos_value_is_refused(ros_context):
 
     with pytest.raises(ValueError, match="sensor_qos"):
         Predictor(context=ros_context, parameter_overrides=[Parameter("sensor_qos", value="fast")])
+
+
+def test_scan_queue_depth_sets_the_scan_subscription_and_refuses_zero(ros_context):
+    from rclpy.parameter import Parameter
+
+    from pf_slam_nodes.nodes.predictor import Predictor
+
+    pred = Predictor(context=ros_context, parameter_overrides=[Parameter("scan_queue_depth", value=5)])
+    try:
+        assert _scan_subscription(pred).qos_profile.depth == 5
+    finally:
+        pred.destroy_node()
+    pred = Predictor(context=ros_context)
+    try:
+        assert _scan_subscription(pred).qos_profile.depth == 1000  # the lossless replay's default
+    finally:
+        pred.destroy_node()
+    with pytest.raises(ValueError, match="scan_queue_depth"):
+        Predictor(context=ros_context, parameter_overrides=[Parameter("scan_queue_depth", value=0)])
