@@ -104,7 +104,7 @@ class Predictor(Node):
             )
             return self.create_subscription(msg_type, topic, callback, profile, raw=raw, event_callbacks=events)
 
-        scan_depth = int(param(self, "scan_queue_depth", 1000))
+        scan_depth = param(self, "scan_queue_depth", 1000)
         if scan_depth < 1:
             raise ValueError(f"parameter 'scan_queue_depth' must be >= 1, got {scan_depth}")
         sub_scan = sensor_sub(LaserScan, topics.SCAN, self._on_scan, scan_depth, raw=True)
